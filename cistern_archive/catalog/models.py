@@ -1,0 +1,176 @@
+"""Pydantic models of a site record (one YAML file per site in ``catalog/``).
+
+Every model refuses unknown fields. Paths are relative to the catalog root and may not leave it.
+See the README's "Catalog format" for an annotated example.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from pathlib import PurePosixPath
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*$")
+
+DEFAULT_PLUGINS = {
+    "matcher": "pf-pairwise",
+    "localizer": "wls",
+    "mapper": "evidence-grid",
+    "comparator": "mosaic",
+}
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def check_relative_path(value: str) -> str:
+    """Refuse absolute paths and paths with ``..`` (they would leave the catalog root)."""
+    path = PurePosixPath(value.replace("\\", "/"))
+    if not value.strip():
+        raise ValueError("path is empty")
+    if path.is_absolute() or re.match(r"^[A-Za-z]:", value):
+        raise ValueError(f"path {value!r} is absolute; give it relative to the catalog root")
+    if ".." in path.parts:
+        raise ValueError(f"path {value!r} leaves the catalog root")
+    return str(path)
+
+
+class Expedition(Strict):
+    name: str
+    date: dt.date | None = None
+    team: list[str] = Field(default_factory=list)
+
+
+class Location(Strict):
+    """Where the site is. ``redact: true`` keeps exact coordinates out of public reports."""
+
+    place: str = ""
+    latitude: float | None = Field(default=None, ge=-90, le=90)
+    longitude: float | None = Field(default=None, ge=-180, le=180)
+    redact: bool = True
+
+
+class SonarSettings(Strict):
+    model: str = "Tritech Micron DST"
+    frequency_khz: float | None = Field(default=None, gt=0)
+    range_m: float | None = Field(default=None, gt=0)
+    bins: int | None = Field(default=None, gt=0)
+    step_deg: float | None = Field(default=None, gt=0)
+    beam_width_deg: float = Field(default=3.0, gt=0, lt=90)
+    gain: float | None = Field(default=None, ge=0)
+
+
+class Segmentation(Strict):
+    """Beam segmentation (paper Sec. III-B) settings."""
+
+    method: Literal["paper", "cfar"] = "paper"
+    threshold: float = Field(default=50.0, ge=0, le=255)
+    min_range_m: float = Field(default=0.0, ge=0)
+
+
+class ScanRef(Strict):
+    """One stationary scan of the site."""
+
+    file: str
+    format: str | None = None
+    station: str
+    yaw_deg: float | None = Field(default=None, description="compass heading override, degrees from north")
+    depth_m: float | None = None
+    time: dt.datetime | None = None
+    index: int = Field(default=0, ge=0, description="which scan of a multi-scan file")
+
+    @field_validator("file")
+    @classmethod
+    def _relative(cls, value: str) -> str:
+        return check_relative_path(value)
+
+
+class Probe(Strict):
+    """How to measure a dimension in the map: from a point inside the site, along a direction, to the
+    first wall on each side; ``repeats`` parallel probes ``spacing_m`` apart (the paper's 10 probes)."""
+
+    method: Literal["probe", "auto-width", "auto-length"] = "probe"
+    frame: str | None = Field(default=None, description="station label whose frame the probe is in")
+    inside: tuple[float, float] = (0.0, 0.0)
+    direction_deg: float = 0.0
+    repeats: int = Field(default=1, ge=1, le=100)
+    spacing_m: float = Field(default=0.2, ge=0)
+    depth_m: float | None = None
+
+
+class ReferenceDimension(Strict):
+    """A dimension known from a tape measure (``truth``) or from the team's sonar mosaic (``mosaic``)."""
+
+    name: str
+    value_m: float = Field(gt=0)
+    kind: Literal["mosaic", "truth"]
+    measure: Probe = Field(default_factory=Probe)
+
+
+class StageChoice(Strict):
+    plugin: str
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class PipelineSpec(Strict):
+    matcher: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["matcher"]))
+    localizer: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["localizer"]))
+    mapper: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["mapper"]))
+    comparator: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["comparator"]))
+
+
+class TruthPose(Strict):
+    station: str
+    x_m: float
+    y_m: float
+    yaw_deg: float = 0.0
+
+
+class SiteRecord(Strict):
+    """A site of the catalog."""
+
+    schema_version: Literal[1] = 1
+    id: str
+    name: str
+    description: str = ""
+    expedition: Expedition | None = None
+    location: Location = Field(default_factory=Location)
+    sonar: SonarSettings = Field(default_factory=SonarSettings)
+    segmentation: Segmentation = Field(default_factory=Segmentation)
+    scans: list[ScanRef] = Field(min_length=1)
+    references: list[ReferenceDimension] = Field(default_factory=list)
+    pipeline: PipelineSpec = Field(default_factory=PipelineSpec)
+    seed: int = Field(default=0, ge=0)
+    truth: list[TruthPose] = Field(default_factory=list, description="true station poses (simulated sites)")
+    simulation: str | None = Field(default=None, description="simulator spec this site was made from")
+
+    @field_validator("id")
+    @classmethod
+    def _slug(cls, value: str) -> str:
+        if not SLUG.match(value):
+            raise ValueError(f"id {value!r} must be a slug: lower-case letters, digits and single hyphens")
+        return value
+
+    @field_validator("simulation")
+    @classmethod
+    def _sim_path(cls, value: str | None) -> str | None:
+        return None if value is None else check_relative_path(value)
+
+    @model_validator(mode="after")
+    def _unique_stations(self) -> "SiteRecord":
+        seen: set[str] = set()
+        for scan in self.scans:
+            if scan.station in seen:
+                raise ValueError(f"station {scan.station!r} appears twice")
+            seen.add(scan.station)
+        for ref in self.references:
+            if ref.measure.frame is not None and ref.measure.frame not in seen:
+                raise ValueError(f"reference {ref.name!r}: frame {ref.measure.frame!r} is not a station")
+        return self
+
+    def station_index(self) -> dict[str, int]:
+        return {scan.station: k for k, scan in enumerate(self.scans)}

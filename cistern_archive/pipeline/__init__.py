@@ -1,0 +1,1 @@
+"""The plugin pipeline: stage contracts, the entry-point registry and the runner."""

@@ -1,0 +1,171 @@
+"""Entry-point plugin registry: lazy, typed, failure-tolerant, with provenance.
+
+One entry-point group per stage (:data:`GROUPS`). Entry points are listed without importing them; a
+plugin is imported only when a record asks for it, checked against its stage's Protocol, and kept.
+A plugin that fails to import is remembered with its error and reported; it never breaks the sites
+that do not use it. The built-in stages (``plugins/``) register through the same groups.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+
+from cistern_archive.errors import PluginError
+from cistern_archive.pipeline.contracts import PROTOCOLS, STAGES, StageParams
+
+GROUPS = {stage: f"cistern_archive.{stage}s" for stage in STAGES}
+
+
+@dataclass(frozen=True)
+class PluginInfo:
+    """What is known about an installed plugin without importing it."""
+
+    stage: str
+    name: str
+    value: str
+    distribution: str
+    version: str
+
+    def provenance(self) -> dict[str, str]:
+        return {"plugin": self.name, "distribution": self.distribution, "version": self.version}
+
+
+@dataclass(frozen=True)
+class LoadedPlugin:
+    """An imported, checked plugin instance with its provenance."""
+
+    info: PluginInfo
+    instance: Any
+
+    @property
+    def params_model(self) -> type[BaseModel]:
+        return self.instance.Params
+
+    def validate_params(self, params: dict[str, Any]) -> StageParams:
+        """Validate a record's parameters with the plugin's ``Params`` model."""
+        return self.instance.Params.model_validate(params)
+
+
+class Registry:
+    """The installed plugins of every stage.
+
+    Parameters
+    ----------
+    entry_points : dict, optional
+        ``{stage: [EntryPoint, ...]}`` to use instead of the installed distributions (tests use it to
+        isolate the registry).
+    """
+
+    def __init__(self, entry_points: dict[str, list[md.EntryPoint]] | None = None):
+        if entry_points is None:
+            entry_points = {stage: list(md.entry_points(group=group)) for stage, group in GROUPS.items()}
+        self._entry_points = {stage: {ep.name: ep for ep in eps} for stage, eps in entry_points.items()}
+        self._loaded: dict[tuple[str, str], LoadedPlugin] = {}
+        self.errors: dict[tuple[str, str], str] = {}
+
+    # ---------------------------------------------------------------------------------- listing
+    def names(self, stage: str) -> list[str]:
+        return sorted(self._entry_points.get(stage, {}))
+
+    def info(self, stage: str, name: str) -> PluginInfo:
+        ep = self._entry_point(stage, name)
+        dist = getattr(ep, "dist", None)
+        return PluginInfo(
+            stage=stage,
+            name=name,
+            value=ep.value,
+            distribution=dist.name if dist is not None else "unknown",
+            version=dist.version if dist is not None else "unknown",
+        )
+
+    def all_info(self) -> list[PluginInfo]:
+        return [self.info(stage, name) for stage in STAGES for name in self.names(stage)]
+
+    def _entry_point(self, stage: str, name: str) -> md.EntryPoint:
+        if stage not in GROUPS:
+            raise PluginError(f"unknown stage {stage!r}; stages are {', '.join(STAGES)}")
+        try:
+            return self._entry_points.get(stage, {})[name]
+        except KeyError:
+            known = ", ".join(self.names(stage)) or "none"
+            raise PluginError(f"unknown {stage} plugin {name!r}; installed: {known}") from None
+
+    # ---------------------------------------------------------------------------------- loading
+    def load(self, stage: str, name: str) -> LoadedPlugin:
+        """Import, instantiate and check a plugin (once); raise :class:`PluginError` on failure."""
+        key = (stage, name)
+        if key in self._loaded:
+            return self._loaded[key]
+        if key in self.errors:
+            raise PluginError(self.errors[key])
+        info = self.info(stage, name)
+        try:
+            obj = self._entry_point(stage, name).load()
+            instance = obj() if isinstance(obj, type) else obj
+            _check_contract(stage, name, instance)
+        except PluginError as exc:
+            self.errors[key] = str(exc)
+            raise
+        except Exception as exc:  # a third-party import can raise anything
+            message = f"{stage} plugin {name!r} ({info.distribution} {info.version}) failed to load: "
+            message += f"{type(exc).__name__}: {exc}"
+            self.errors[key] = message
+            raise PluginError(message) from exc
+        loaded = LoadedPlugin(info=info, instance=instance)
+        self._loaded[key] = loaded
+        return loaded
+
+    def load_all(self) -> None:
+        """Try to load every plugin (for ``cistern-archive plugins``); errors are kept in :attr:`errors`."""
+        for stage in STAGES:
+            for name in self.names(stage):
+                try:
+                    self.load(stage, name)
+                except PluginError:
+                    pass
+
+    def check_params(self, stage: str, name: str, params: dict[str, Any]) -> StageParams:
+        """Load the plugin and validate parameters; errors name the plugin and the field."""
+        plugin = self.load(stage, name)
+        try:
+            return plugin.validate_params(params)
+        except ValidationError as exc:
+            details = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or '(params)'}: "
+                + ("unknown parameter" if e["type"] == "extra_forbidden" else e["msg"])
+                for e in exc.errors()
+            )
+            raise PluginError(f"{stage} plugin {name!r}: bad params: {details}") from None
+
+
+def _check_contract(stage: str, name: str, instance: Any) -> None:
+    protocol = PROTOCOLS[stage]
+    if not isinstance(instance, protocol):
+        missing = [m for m in ("name", "Params", *_methods(protocol)) if not hasattr(instance, m)]
+        raise PluginError(f"{stage} plugin {name!r} does not implement {protocol.__name__}: missing {missing}")
+    params = getattr(instance, "Params", None)
+    if not (isinstance(params, type) and issubclass(params, BaseModel)):
+        raise PluginError(f"{stage} plugin {name!r}: Params must be a pydantic model class")
+    try:
+        params()
+    except ValidationError as exc:
+        raise PluginError(f"{stage} plugin {name!r}: Params must have defaults for every field: {exc}") from None
+
+
+def _methods(protocol: type) -> list[str]:
+    return [m for m in ("match", "pairs", "localize", "build", "compare") if hasattr(protocol, m)]
+
+
+_default: Registry | None = None
+
+
+def default_registry() -> Registry:
+    """The process-wide registry of installed plugins (created on first use)."""
+    global _default
+    if _default is None:
+        _default = Registry()
+    return _default

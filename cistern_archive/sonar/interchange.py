@@ -1,0 +1,143 @@
+"""The open interchange format: one scan per ``.npz`` file.
+
+A ``.npz`` (a zip of ``.npy`` arrays, readable by numpy and by any zip + npy reader) holding:
+
+==================  ========================  ==============================================
+name                dtype / shape             meaning
+==================  ========================  ==============================================
+``bearings_rad``    float64 (A,)              beam bearings, sonar frame, CCW from forward
+``intensities``     device dtype (A, B)       echo intensities, 0 .. ``full_scale``
+``metadata``        uint8 (N,)                UTF-8 JSON object (see below)
+==================  ========================  ==============================================
+
+``metadata`` keys: ``schema`` (``"cistern-archive/scan"``), ``schema_version`` (1), ``full_scale``,
+``bin_size_m``, ``start_range_m``, ``yaw_rad``, ``depth_m``, ``timestamp`` (Unix seconds or null),
+``sonar_model``, ``beam_width_rad``, ``station``, ``settings`` (object). Floats are written with
+``repr`` precision, so a round trip is exact. Files are written uncompressed-but-zipped
+(``np.savez_compressed``) to a temporary sibling and renamed into place.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from cistern_archive.errors import ReaderError
+from cistern_archive.sonar.scan import Scan
+
+SCHEMA = "cistern-archive/scan"
+SCHEMA_VERSION = 1
+
+
+def scan_metadata(scan: Scan) -> dict:
+    return {
+        "schema": SCHEMA,
+        "schema_version": SCHEMA_VERSION,
+        "full_scale": float(scan.full_scale),
+        "bin_size_m": float(scan.bin_size_m),
+        "start_range_m": float(scan.start_range_m),
+        "yaw_rad": float(scan.yaw_rad),
+        "depth_m": float(scan.depth_m),
+        "timestamp": None if math.isnan(scan.timestamp) else float(scan.timestamp),
+        "sonar_model": scan.sonar_model,
+        "beam_width_rad": float(scan.beam_width_rad),
+        "station": scan.station,
+        "settings": scan.settings,
+    }
+
+
+def write_scan(scan: Scan, path: str | os.PathLike) -> Path:
+    """Write ``scan`` to ``path`` atomically (temporary sibling, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = json.dumps(scan_metadata(scan), sort_keys=True, allow_nan=False).encode("utf-8")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            _write_npz_deterministic(
+                handle,
+                {
+                    "bearings_rad": np.asarray(scan.bearings_rad, dtype=np.float64),
+                    "intensities": np.asarray(scan.intensities),
+                    "metadata": np.frombuffer(meta, dtype=np.uint8),
+                },
+            )
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _write_npz_deterministic(handle, arrays: dict[str, np.ndarray]) -> None:
+    """Like ``np.savez_compressed`` but with fixed zip timestamps, so equal scans give equal bytes."""
+    import io
+
+    with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, array in arrays.items():
+            buffer = io.BytesIO()
+            np.lib.format.write_array(buffer, np.ascontiguousarray(array), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            archive.writestr(info, buffer.getvalue())
+
+
+def read_scan(path: str | os.PathLike) -> Scan:
+    """Read a scan written by :func:`write_scan`.
+
+    Raises
+    ------
+    ReaderError
+        Naming the file and what is missing or wrong.
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = {"bearings_rad", "intensities", "metadata"} - set(data.files)
+            if missing:
+                raise ReaderError(str(path), f"not a cistern-archive scan: missing arrays {sorted(missing)}")
+            bearings = data["bearings_rad"]
+            intensities = data["intensities"]
+            meta_bytes = data["metadata"].tobytes()
+    except ReaderError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ReaderError(str(path), f"unreadable .npz: {exc}") from None
+    try:
+        meta = json.loads(meta_bytes.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ReaderError(str(path), f"metadata is not UTF-8 JSON: {exc}") from None
+    if meta.get("schema") != SCHEMA:
+        raise ReaderError(str(path), f"metadata schema is {meta.get('schema')!r}, expected {SCHEMA!r}")
+    if meta.get("schema_version") != SCHEMA_VERSION:
+        raise ReaderError(str(path), f"unsupported schema_version {meta.get('schema_version')!r}")
+    if not np.all(np.isfinite(bearings)):
+        raise ReaderError(str(path), "bearings_rad contains NaN or infinite values")
+    timestamp = meta.get("timestamp")
+    try:
+        return Scan(
+            bearings_rad=bearings,
+            intensities=intensities,
+            full_scale=meta["full_scale"],
+            bin_size_m=meta["bin_size_m"],
+            start_range_m=meta["start_range_m"],
+            yaw_rad=meta["yaw_rad"],
+            depth_m=meta["depth_m"],
+            timestamp=float("nan") if timestamp is None else float(timestamp),
+            sonar_model=meta["sonar_model"],
+            beam_width_rad=meta["beam_width_rad"],
+            station=meta["station"],
+            settings=meta.get("settings", {}),
+        )
+    except KeyError as exc:
+        raise ReaderError(str(path), f"metadata lacks {exc.args[0]!r}") from None
+    except ValueError as exc:
+        raise ReaderError(str(path), str(exc)) from None

@@ -1,0 +1,93 @@
+"""Readers of recorded sonar files, registered by format name.
+
+``read_scans(path, fmt=None)`` returns every 360° scan (or sector sweep) of a file as a list of
+:class:`~cistern_archive.sonar.scan.Scan`. A reader never modifies its input file.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from cistern_archive.errors import ReaderError
+from cistern_archive.sonar.scan import Scan
+
+
+@dataclass(frozen=True)
+class ReadResult:
+    """Scans read from one file plus warnings that name the record or byte offset they concern."""
+
+    format: str
+    scans: list[Scan]
+    warnings: list[str]
+
+
+ReaderFunc = Callable[[Path], ReadResult]
+
+
+@dataclass(frozen=True)
+class ReaderSpec:
+    name: str
+    suffixes: tuple[str, ...]
+    read: ReaderFunc
+    description: str = ""
+
+
+READERS: dict[str, ReaderSpec] = {}
+
+
+def register_reader(name: str, suffixes: tuple[str, ...], description: str = ""):
+    """Decorator: register ``func(path) -> ReadResult`` as the reader of format ``name``."""
+
+    def decorate(func: ReaderFunc) -> ReaderFunc:
+        READERS[name] = ReaderSpec(name=name, suffixes=tuple(s.lower() for s in suffixes), read=func,
+                                   description=description)
+        return func
+
+    return decorate
+
+
+def detect_format(path: Path) -> str:
+    """Pick a reader by the file's suffix (or name pattern)."""
+    _load_builtin_readers()
+    name = path.name.lower()
+    for spec in READERS.values():
+        if any(name.endswith(suffix) for suffix in spec.suffixes):
+            return spec.name
+    raise ReaderError(str(path), f"no reader for this file type; known formats: {', '.join(sorted(READERS))}")
+
+
+def read_file(path: str | os.PathLike, fmt: str | None = None) -> ReadResult:
+    """Read every scan of a file with the reader of ``fmt`` (detected from the name when omitted)."""
+    _load_builtin_readers()
+    path = Path(path)
+    if not path.is_file():
+        raise ReaderError(str(path), "file not found")
+    fmt = fmt or detect_format(path)
+    if fmt not in READERS:
+        raise ReaderError(str(path), f"unknown format {fmt!r}; known formats: {', '.join(sorted(READERS))}")
+    return READERS[fmt].read(path)
+
+
+def read_scans(path: str | os.PathLike, fmt: str | None = None) -> list[Scan]:
+    return read_file(path, fmt).scans
+
+
+_loaded = False
+
+
+def _load_builtin_readers() -> None:
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True
+    from cistern_archive.sonar.readers import npz  # noqa: F401  (registers itself)
+
+    for module in ("seanet", "ping360", "pcd"):
+        try:
+            __import__(f"cistern_archive.sonar.readers.{module}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"cistern_archive.sonar.readers.{module}":
+                raise
