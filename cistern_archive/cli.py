@@ -1,0 +1,79 @@
+"""The ``cistern-archive`` command-line app (typer).
+
+Exit codes: 0 all sites built; 1 some sites failed (the others still built); 2 usage or catalog error;
+3 internal error; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import typer
+
+from cistern_archive.commands import COMMAND_MODULES, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
+from cistern_archive.errors import CisternError
+
+app = typer.Typer(
+    name="cistern-archive",
+    help="Maps, 3D models and reports from stationary sonar scans of flooded archaeological sites.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
+) -> None:
+    if version:
+        from cistern_archive import __version__
+
+        typer.echo(__version__)
+        raise typer.Exit(0)
+
+
+def _register_commands() -> None:
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"cistern_archive.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"cistern_archive.commands.{name}":
+                continue
+            raise
+        module.register(app)
+
+
+_register_commands()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script; maps exceptions to the documented exit codes."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except SystemExit:
+        raise
+    except CisternError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(EXIT_USAGE)
+    except Exception as exc:  # click's usage errors and anything unexpected
+        import click
+
+        if isinstance(exc, click.exceptions.Exit):
+            sys.exit(exc.exit_code)
+        if isinstance(exc, click.exceptions.Abort):
+            typer.echo("interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(EXIT_USAGE)
+        import traceback
+
+        traceback.print_exc()
+        typer.echo(f"internal error: {type(exc).__name__}: {exc}", err=True)
+        sys.exit(EXIT_INTERNAL)
+    sys.exit(0)

@@ -1,0 +1,127 @@
+"""The JSON result of a site build (``result.json``) and the in-memory bundle the report renders.
+
+:class:`SiteResult` is the stable, documented output; :class:`SiteBuild` carries it together with the
+arrays (scans, grids, match histories) that figures need and JSON should not hold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from cistern_archive.pipeline.contracts import DimensionTable, MapResult, MatchResult, Poses
+from cistern_archive.sonar.scan import RangeScan, Scan
+
+RESULT_SCHEMA_VERSION = 1
+
+
+class Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ScanPose(Model):
+    index: int
+    id: str = Field(description="station label")
+    file: str
+    x_m: float | None
+    y_m: float | None
+    yaw_rad: float
+    depth_m: float
+    placed: bool
+    reason: str = ""
+    sigma_x_m: float | None = None
+    sigma_y_m: float | None = None
+    truth_x_m: float | None = None
+    truth_y_m: float | None = None
+
+
+class PairResult(Model):
+    i: int
+    j: int
+    dx_m: float
+    dy_m: float
+    dyaw_rad: float
+    weight: float
+    converged: bool
+    iterations: int
+    seconds: float
+    reason: str = ""
+
+
+class DimensionResult(Model):
+    name: str
+    map_m: float | None
+    reference_m: float
+    reference_kind: Literal["mosaic", "truth"]
+    diff_m: float | None
+    depth_m: float = 0.0
+    probe_std_m: float | None = None
+    probes_m: list[float] = Field(default_factory=list)
+    note: str = ""
+
+
+class PluginProvenance(Model):
+    stage: str
+    plugin: str
+    distribution: str
+    version: str
+    params: dict[str, Any]
+
+
+class Provenance(Model):
+    software: str = "cistern-archive"
+    code_version: str
+    plugins: list[PluginProvenance]
+    seeds: dict[str, int]
+    record_file: str
+    python: str
+    numpy: str
+
+
+class StageFailure(Model):
+    stage: str
+    input: str
+    error: str
+    traceback: str = ""
+
+
+class SiteResult(Model):
+    """Everything a site build produced that fits in JSON."""
+
+    schema_version: int = RESULT_SCHEMA_VERSION
+    site_id: str
+    name: str
+    status: Literal["ok", "failed"]
+    scans: list[ScanPose] = Field(default_factory=list)
+    pairs: list[PairResult] = Field(default_factory=list)
+    dimensions: list[DimensionResult] = Field(default_factory=list)
+    dimension_stats: dict[str, float | None] = Field(default_factory=dict)
+    map_stats: dict[str, float] = Field(default_factory=dict)
+    reference_scan: int | None = None
+    provenance: Provenance | None = None
+    timings_s: dict[str, float] = Field(default_factory=dict)
+    failure: StageFailure | None = None
+    artifacts: dict[str, str] = Field(default_factory=dict, description="name -> path relative to the site folder")
+
+    @property
+    def error(self) -> str | None:
+        return None if self.failure is None else f"{self.failure.stage}: {self.failure.input}: {self.failure.error}"
+
+
+@dataclass(eq=False)
+class SiteBuild:
+    """A built site: the JSON result plus the arrays behind it, for the report.
+
+    Attributes that a failed build did not reach are ``None`` or empty.
+    """
+
+    result: SiteResult
+    record: Any  # cistern_archive.catalog.models.SiteRecord
+    raw_scans: list[Scan] = field(default_factory=list)
+    range_scans: list[RangeScan] = field(default_factory=list)
+    matches: list[MatchResult] = field(default_factory=list)
+    poses: Poses | None = None
+    map_result: MapResult | None = None
+    table: DimensionTable | None = None
