@@ -87,7 +87,7 @@ def parse_yaml(path: Path) -> tuple[Any, dict[tuple[Any, ...], int]]:
     return _construct(node, (), lines), lines
 
 
-def _format_loc(loc: Iterable[Any]) -> str:
+def format_loc(loc: Iterable[Any]) -> str:
     parts: list[str] = []
     for item in loc:
         if isinstance(item, int):
@@ -105,7 +105,7 @@ def validation_problems(path: Path, error: ValidationError, lines: dict[tuple[An
         message = item["msg"]
         if item["type"] == "extra_forbidden":
             message = "unknown field"
-        problems.append(f"{path}:{_nearest_line(lines, loc)}: {_format_loc(loc)}: {message}")
+        problems.append(f"{path}:{_nearest_line(lines, loc)}: {format_loc(loc)}: {message}")
     return problems
 
 

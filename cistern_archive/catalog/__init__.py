@@ -1,0 +1,1 @@
+"""Site catalog: pydantic records, YAML loading with line numbers, whole-catalog validation."""

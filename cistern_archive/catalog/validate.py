@@ -1,0 +1,102 @@
+"""Whole-catalog validation: schema, referenced files, plugin names and their parameters.
+
+Every problem reads ``file:line: field: message``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cistern_archive.catalog.loader import LoadedRecord, format_loc, load_record, record_paths
+from cistern_archive.errors import CatalogError, PluginError
+from cistern_archive.pipeline.contracts import STAGES
+from cistern_archive.pipeline.registry import Registry, default_registry
+
+
+@dataclass
+class CatalogReport:
+    """The records that passed and every problem found."""
+
+    records: list[LoadedRecord] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def check_files(loaded: LoadedRecord) -> list[str]:
+    """Problems with the files a record references: missing, not a file, or resolving outside the root."""
+    problems = []
+    record = loaded.record
+    refs = [(("scans", k, "file"), scan.file) for k, scan in enumerate(record.scans)]
+    if record.simulation:
+        refs.append((("simulation",), record.simulation))
+    for loc, relative in refs:
+        resolved = loaded.resolve(relative)
+        where = f"{loaded.path}:{loaded.line_of(*loc)}: {format_loc(loc)}"
+        if not resolved.is_relative_to(loaded.root):
+            problems.append(f"{where}: {relative!r} resolves outside the catalog root (symbolic link?)")
+        elif not resolved.exists():
+            problems.append(f"{where}: file {relative!r} not found under {loaded.root}")
+        elif not resolved.is_file():
+            problems.append(f"{where}: {relative!r} is not a file")
+    return problems
+
+
+def check_plugins(loaded: LoadedRecord, registry: Registry) -> list[str]:
+    """Problems with the record's pipeline: unknown plugins, plugins that fail to load, bad params."""
+    problems = []
+    for stage in STAGES:
+        choice = getattr(loaded.record.pipeline, stage)
+        try:
+            registry.load(stage, choice.plugin)
+        except PluginError as exc:
+            line = loaded.line_of("pipeline", stage, "plugin")
+            problems.append(f"{loaded.path}:{line}: pipeline.{stage}.plugin: {exc}")
+            continue
+        try:
+            registry.check_params(stage, choice.plugin, choice.params)
+        except PluginError as exc:
+            line = loaded.line_of("pipeline", stage, "params")
+            problems.append(f"{loaded.path}:{line}: pipeline.{stage}.params: {exc}")
+    return problems
+
+
+def validate_record(path: Path, root: Path, registry: Registry | None = None) -> LoadedRecord:
+    """Load one record and check everything; raise :class:`CatalogError` listing every problem."""
+    registry = registry or default_registry()
+    loaded = load_record(path, root)
+    problems = check_files(loaded) + check_plugins(loaded, registry)
+    if problems:
+        raise CatalogError(problems)
+    return loaded
+
+
+def validate_catalog(catalog: Path, registry: Registry | None = None) -> CatalogReport:
+    """Validate every record under ``catalog``; site ids must be unique."""
+    registry = registry or default_registry()
+    report = CatalogReport()
+    paths = record_paths(catalog)
+    if not catalog.is_dir():
+        report.problems.append(f"{catalog}:1: (catalog): not a directory")
+        return report
+    if not paths:
+        report.problems.append(f"{catalog}:1: (catalog): no site records (*.yaml) found")
+    seen: dict[str, Path] = {}
+    for path in paths:
+        try:
+            loaded = validate_record(path, catalog, registry)
+        except CatalogError as exc:
+            report.problems.extend(exc.problems)
+            continue
+        site_id = loaded.record.id
+        if site_id in seen:
+            report.problems.append(
+                f"{path}:{loaded.line_of('id')}: id: site id {site_id!r} is already used by {seen[site_id]}"
+            )
+            continue
+        seen[site_id] = path
+        report.records.append(loaded)
+    return report

@@ -1,0 +1,269 @@
+"""Run one site through the pipeline: record → scans → matches → poses → grids → dimension table.
+
+The runner owns the order, the timing and the errors; the stages own the science. A failure is caught,
+recorded with its stage and the input that caused it, and returned as a failed :class:`SiteResult`;
+it never propagates to other sites.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import tempfile
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from cistern_archive import __version__
+from cistern_archive.catalog.loader import LoadedRecord
+from cistern_archive.catalog.models import ScanRef, SiteRecord
+from cistern_archive.errors import StageError
+from cistern_archive.pipeline.contracts import STAGES, MatchResult, StageParams
+from cistern_archive.pipeline.registry import LoadedPlugin, Registry, default_registry
+from cistern_archive.pipeline.results import (
+    DimensionResult,
+    PairResult,
+    PluginProvenance,
+    Provenance,
+    ScanPose,
+    SiteBuild,
+    SiteResult,
+    StageFailure,
+)
+from cistern_archive.sonar.readers import read_file
+from cistern_archive.sonar.scan import Scan
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A resolved stage: the loaded plugin and its validated parameters."""
+
+    plugin: LoadedPlugin
+    params: StageParams
+
+    @property
+    def instance(self) -> Any:
+        return self.plugin.instance
+
+    def provenance(self, stage: str) -> PluginProvenance:
+        info = self.plugin.info
+        return PluginProvenance(
+            stage=stage,
+            plugin=info.name,
+            distribution=info.distribution,
+            version=info.version,
+            params=self.params.model_dump(mode="json"),
+        )
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.timings: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 6)
+
+
+def resolve_stages(record: SiteRecord, registry: Registry) -> dict[str, Stage]:
+    """Load the record's plugin for every stage and validate its parameters."""
+    stages = {}
+    for stage in STAGES:
+        choice = getattr(record.pipeline, stage)
+        plugin = registry.load(stage, choice.plugin)
+        stages[stage] = Stage(plugin=plugin, params=registry.check_params(stage, choice.plugin, choice.params))
+    return stages
+
+
+def load_scan(loaded: LoadedRecord, ref: ScanRef) -> Scan:
+    """Read the scan a record references and apply the record's station, heading and depth."""
+    result = read_file(loaded.resolve(ref.file), ref.format)
+    if ref.index >= len(result.scans):
+        raise ValueError(f"file holds {len(result.scans)} scan(s); index {ref.index} requested")
+    scan = result.scans[ref.index]
+    changes: dict[str, Any] = {"station": ref.station}
+    if ref.yaw_deg is not None:
+        changes["yaw_rad"] = math.radians(90.0 - ref.yaw_deg)
+    if ref.depth_m is not None:
+        changes["depth_m"] = ref.depth_m
+    if ref.time is not None:
+        changes["timestamp"] = ref.time.timestamp()
+    return scan.replace(**changes)
+
+
+def pair_rng(seed: int, i: int, j: int) -> np.random.Generator:
+    """The generator of one directed pair: independent of the order pairs run in."""
+    return np.random.default_rng([seed, i, j])
+
+
+def _run(stage: str, input_label: str, func: Callable[[], T]) -> T:
+    try:
+        return func()
+    except StageError:
+        raise
+    except Exception as exc:
+        raise StageError(stage, input_label, f"{type(exc).__name__}: {exc}") from exc
+
+
+def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> SiteBuild:
+    """Run the whole pipeline for one site; never raises for a stage failure.
+
+    Returns
+    -------
+    SiteBuild
+        ``result.status`` is ``"ok"`` or ``"failed"`` (with ``result.failure`` naming the stage and the
+        input that caused it); the arrays reached before a failure are kept for the report.
+    """
+    from cistern_archive.sonar.segmentation import segment
+
+    registry = registry or default_registry()
+    record = loaded.record
+    timer = _Timer()
+    build = SiteBuild(result=SiteResult(site_id=record.id, name=record.name, status="ok"), record=record)
+    stages: dict[str, Stage] = {}
+    try:
+        with timer.stage("configure"):
+            stages = _run("configure", str(loaded.path), lambda: resolve_stages(record, registry))
+        with timer.stage("load"):
+            for ref in record.scans:
+                build.raw_scans.append(_run("load", ref.file, lambda ref=ref: load_scan(loaded, ref)))
+        with timer.stage("segment"):
+            for ref, scan in zip(record.scans, build.raw_scans):
+                build.range_scans.append(_run("segment", ref.file, lambda s=scan: segment(s, record.segmentation)))
+        localizer, matcher = stages["localizer"], stages["matcher"]
+        with timer.stage("match"):
+            pairs = _run("match", "pair list", lambda: localizer.instance.pairs(len(build.range_scans), localizer.params))
+            for i, j in pairs:
+                build.matches.append(_run("match", _pair_label(record, i, j), lambda i=i, j=j: _match(build, matcher, record.seed, i, j)))
+        with timer.stage("localize"):
+            build.poses = _run("localize", f"{len(build.matches)} matches",
+                               lambda: localizer.instance.localize(build.range_scans, build.matches, localizer.params))
+        mapper, comparator = stages["mapper"], stages["comparator"]
+        with timer.stage("map"):
+            build.map_result = _run("map", f"{int(build.poses.placed.sum())} placed scans",
+                                    lambda: mapper.instance.build(build.range_scans, build.poses, mapper.params))
+        with timer.stage("compare"):
+            build.table = _run("compare", f"{len(record.references)} reference dimensions",
+                               lambda: comparator.instance.compare(build.map_result, build.poses, record.references,
+                                                                   record.station_index(), comparator.params))
+    except StageError as exc:
+        build.result.status = "failed"
+        build.result.failure = StageFailure(
+            stage=exc.stage, input=exc.input, error=exc.message,
+            traceback="".join(traceback.format_exception(exc.__cause__ or exc)),
+        )
+    build.result = assemble_result(build, loaded, stages, timer.timings)
+    return build
+
+
+def _pair_label(record: SiteRecord, i: int, j: int) -> str:
+    stations = [s.station for s in record.scans]
+    return f"pair {i}->{j} ({stations[i]} -> {stations[j]})"
+
+
+def _match(build: SiteBuild, matcher: Stage, seed: int, i: int, j: int) -> MatchResult:
+    start = time.perf_counter()
+    result = matcher.instance.match(build.range_scans[i], build.range_scans[j], matcher.params,
+                                    rng=pair_rng(seed, i, j))
+    if not isinstance(result, MatchResult):
+        raise TypeError(f"matcher returned {type(result).__name__}, expected MatchResult")
+    seconds = result.seconds if result.seconds > 0 else time.perf_counter() - start
+    return MatchResult(**{**result.__dict__, "i": i, "j": j, "seconds": seconds})
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, Stage],
+                    timings: dict[str, float]) -> SiteResult:
+    """Fill the JSON result from whatever the build reached."""
+    record = loaded.record
+    result = build.result.model_copy()
+    truth = {t.station: t for t in record.truth}
+    poses = build.poses
+    scans = []
+    for k, ref in enumerate(record.scans):
+        raw = build.raw_scans[k] if k < len(build.raw_scans) else None
+        placed = bool(poses is not None and poses.placed[k])
+        sigma = (None, None)
+        if placed and poses.covariance is not None:
+            sigma = (_finite(math.sqrt(poses.covariance[k, 0, 0])), _finite(math.sqrt(poses.covariance[k, 1, 1])))
+        t = truth.get(ref.station)
+        scans.append(ScanPose(
+            index=k, id=ref.station, file=ref.file,
+            x_m=_finite(poses.xy_m[k, 0]) if placed else None,
+            y_m=_finite(poses.xy_m[k, 1]) if placed else None,
+            yaw_rad=float(poses.yaw_rad[k]) if poses is not None else (raw.yaw_rad if raw else 0.0),
+            depth_m=raw.depth_m if raw else (ref.depth_m or 0.0),
+            placed=placed,
+            reason=(poses.reasons[k] if poses is not None else "not localized: " + (result.error or "")),
+            sigma_x_m=sigma[0], sigma_y_m=sigma[1],
+            truth_x_m=t.x_m if t else None, truth_y_m=t.y_m if t else None,
+        ))
+    result.scans = scans
+    result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
+    result.pairs = [
+        PairResult(i=m.i, j=m.j, dx_m=m.dx_m, dy_m=m.dy_m, dyaw_rad=m.dyaw_rad, weight=_finite(m.weight) or 0.0,
+                   converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason)
+        for m in build.matches
+    ]
+    if build.table is not None:
+        result.dimensions = [
+            DimensionResult(name=row.name, map_m=_finite(row.map_m), reference_m=row.reference_m,
+                            reference_kind=row.reference_kind, diff_m=_finite(row.diff_m), depth_m=row.depth_m,
+                            probe_std_m=_finite(row.probe_std_m), probes_m=[float(p) for p in row.probes],
+                            note=row.note)
+            for row in build.table.rows
+        ]
+        result.dimension_stats = {k: _finite(v) for k, v in sorted(build.table.stats.items())}
+    if build.map_result is not None:
+        result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
+    result.timings_s = dict(timings)
+    result.timings_s["total"] = round(sum(timings.values()), 6)
+    result.provenance = Provenance(
+        code_version=__version__,
+        plugins=[s.provenance(name) for name, s in stages.items()],
+        seeds={"site": record.seed},
+        record_file=str(loaded.path.relative_to(loaded.root)) if loaded.path.is_relative_to(loaded.root) else str(loaded.path),
+        python=platform.python_version(),
+        numpy=np.__version__,
+    )
+    return result
+
+
+def write_json_atomic(data: Any, path: Path) -> None:
+    """Write JSON to a temporary sibling and rename it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_site_result(build: SiteBuild, site_dir: Path) -> Path:
+    """Write ``result.json`` (and the resolved record, ``record.json``) into ``site_dir``."""
+    site_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(build.record.model_dump(mode="json"), site_dir / "record.json")
+    path = site_dir / "result.json"
+    write_json_atomic(build.result.model_dump(mode="json"), path)
+    return path
