@@ -1,0 +1,83 @@
+"""The entry-point registry: lazy listing, contract checks, failure tolerance, provenance."""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+import sys
+
+import pytest
+
+from cistern_archive.errors import PluginError
+from cistern_archive.pipeline.registry import GROUPS, Registry
+
+
+def entry(name: str, value: str, stage: str = "matcher") -> md.EntryPoint:
+    return md.EntryPoint(name=name, value=value, group=GROUPS[stage])
+
+
+@pytest.fixture()
+def registry() -> Registry:
+    return Registry({
+        "matcher": [
+            entry("compass-only", "stage_plugins:CompassOnlyMatcher"),
+            entry("broken", "broken_plugin:Matcher"),
+            entry("no-method", "stage_plugins:NoMethodMatcher"),
+            entry("required-params", "stage_plugins:RequiredParamsMatcher"),
+        ],
+    })
+
+
+def test_listing_does_not_import(registry):
+    sys.modules.pop("broken_plugin", None)
+    assert registry.names("matcher") == ["broken", "compass-only", "no-method", "required-params"]
+    assert "broken_plugin" not in sys.modules
+    assert registry.info("matcher", "broken").distribution == "unknown"
+
+
+def test_load_checks_the_protocol_and_keeps_the_instance(registry):
+    plugin = registry.load("matcher", "compass-only")
+    assert plugin.instance.name == "compass-only"
+    assert registry.load("matcher", "compass-only") is plugin
+    assert registry.check_params("matcher", "compass-only", {"scale": 2}).scale == 2.0
+
+
+def test_import_failure_is_recorded_and_others_still_load(registry):
+    with pytest.raises(PluginError, match="failed to load: ImportError: this plugin needs a library"):
+        registry.load("matcher", "broken")
+    assert ("matcher", "broken") in registry.errors
+    with pytest.raises(PluginError, match="failed to load"):  # remembered, not retried
+        registry.load("matcher", "broken")
+    registry.load_all()
+    assert set(registry.errors) == {("matcher", "broken"), ("matcher", "no-method"), ("matcher", "required-params")}
+    assert registry.load("matcher", "compass-only").instance is not None
+
+
+def test_contract_violations_are_named(registry):
+    with pytest.raises(PluginError, match=r"does not implement Matcher: missing \['match'\]"):
+        registry.load("matcher", "no-method")
+    with pytest.raises(PluginError, match="Params must have defaults"):
+        registry.load("matcher", "required-params")
+
+
+def test_unknown_names_and_stages(registry):
+    with pytest.raises(PluginError, match="unknown matcher plugin 'nope'; installed: broken, compass-only"):
+        registry.load("matcher", "nope")
+    with pytest.raises(PluginError, match="unknown stage 'painter'"):
+        registry.load("painter", "x")
+
+
+def test_bad_params_name_the_field(registry):
+    with pytest.raises(PluginError, match="bad params: scale: Input should be a valid number"):
+        registry.check_params("matcher", "compass-only", {"scale": "big"})
+    with pytest.raises(PluginError, match="colour: unknown parameter"):
+        registry.check_params("matcher", "compass-only", {"colour": 1})
+
+
+def test_installed_builtins_carry_provenance():
+    registry = Registry()
+    info = registry.info("matcher", "pf-pairwise")
+    assert info.distribution == "cistern-archive"
+    assert info.provenance()["plugin"] == "pf-pairwise"
+    assert set(GROUPS) == {"matcher", "localizer", "mapper", "comparator"}
+    for stage in GROUPS:
+        assert registry.names(stage), f"no built-in {stage} registered"
