@@ -21,8 +21,9 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -m "not slow" -q
 
+# pytest exits 5 when no test is marked slow; that is not a failure.
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -m "slow" -q
+	$(BIN)/python -m pytest -m "slow" -q || [ $$? -eq 5 ]
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q

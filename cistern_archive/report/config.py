@@ -28,5 +28,5 @@ class ReportConfig(BaseModel):
     iso_level: float = Field(default=0.6, gt=0, lt=1, description="occupancy probability of the isosurface")
     smooth_sigma_cells: float = Field(default=0.6, ge=0, description="Gaussian blur of the volume before meshing")
     smooth_iterations: int = Field(default=20, ge=0, description="Taubin smoothing passes of the mesh")
-    max_faces: int = Field(default=40_000, ge=100, description="decimate the mesh down to this many triangles")
+    max_faces: int = Field(default=25_000, ge=100, description="decimate the mesh down to this many triangles")
     max_page_bytes: int = Field(default=5_000_000, gt=0, description="budget of a site page with its images")

@@ -366,7 +366,8 @@ class StreamDecoder:
 
     The decoder keeps at most one partial frame (bounded by :data:`MAX_LENGTH`). Skipped bytes are
     reported as :class:`Discard` records in :attr:`discards` (drain them with :meth:`take_discards`);
-    consecutive skipped bytes are merged into one record.
+    contiguous skipped bytes are merged into one record, whose reason is the first failed check (or
+    "no '@'" when the bytes held no ``@``).
 
     Parameters
     ----------
@@ -433,9 +434,9 @@ class StreamDecoder:
             return
         offset = self._base + start
         last = self.discards[-1] if self.discards else None
-        if last is not None and last.offset + last.length == offset and (
-                last.reason == reason or reason == "no '@'"):
-            self.discards[-1] = Discard(last.offset, last.length + stop - start, last.reason)
+        if last is not None and last.offset + last.length == offset:
+            keep = reason if last.reason == "no '@'" else last.reason
+            self.discards[-1] = Discard(last.offset, last.length + stop - start, keep)
         else:
             self.discards.append(Discard(offset, stop - start, reason))
 
@@ -669,6 +670,15 @@ class HeadData:
     @property
     def power_loss(self) -> bool:
         return bool(self.head_status & STATUS_HDPWRLOSS)
+
+    def bearing_rad(self, *, ahead: int = 3200) -> float:
+        """Sonar-frame bearing of this line (CCW from forward, radians).
+
+        :func:`bearing_to_rad` of :attr:`bearing`, mirrored when the head is mounted upside-down
+        (HdCtrl ``invert``): the transducer then turns the other way seen from above.
+        """
+        theta = float(bearing_to_rad(self.bearing, ahead=ahead))
+        return -theta if self.inverted and theta != -math.pi else theta
 
     def bin_time_s(self) -> float:
         """Two-way travel time per bin, ``ADInterval x 640 ns`` (§7.4)."""

@@ -33,17 +33,24 @@ class ReaderSpec:
     suffixes: tuple[str, ...]
     read: ReaderFunc
     description: str = ""
+    sniff: Callable[[Path], bool] | None = None
+    """Optional content check used when several readers claim the same suffix."""
 
 
 READERS: dict[str, ReaderSpec] = {}
 
 
-def register_reader(name: str, suffixes: tuple[str, ...], description: str = ""):
-    """Decorator: register ``func(path) -> ReadResult`` as the reader of format ``name``."""
+def register_reader(name: str, suffixes: tuple[str, ...], description: str = "",
+                    sniff: Callable[[Path], bool] | None = None):
+    """Decorator: register ``func(path) -> ReadResult`` as the reader of format ``name``.
+
+    ``sniff(path) -> bool`` (optional) tells whether a file's content is this format; it decides between
+    readers that share a suffix (e.g. ``.bin``).
+    """
 
     def decorate(func: ReaderFunc) -> ReaderFunc:
         READERS[name] = ReaderSpec(name=name, suffixes=tuple(s.lower() for s in suffixes), read=func,
-                                   description=description)
+                                   description=description, sniff=sniff)
         return func
 
     return decorate
@@ -53,9 +60,13 @@ def detect_format(path: Path) -> str:
     """Pick a reader by the file's suffix (or name pattern)."""
     _load_builtin_readers()
     name = path.name.lower()
-    for spec in READERS.values():
-        if any(name.endswith(suffix) for suffix in spec.suffixes):
-            return spec.name
+    candidates = [spec for spec in READERS.values() if any(name.endswith(suffix) for suffix in spec.suffixes)]
+    if len(candidates) > 1:
+        for spec in candidates:
+            if spec.sniff is not None and spec.sniff(path):
+                return spec.name
+    if candidates:
+        return candidates[0].name
     raise ReaderError(str(path), f"no reader for this file type; known formats: {', '.join(sorted(READERS))}")
 
 

@@ -1,0 +1,198 @@
+"""The simulated LAIR pool (McVicker et al., Sec. IV) over many seeds, beside the paper's numbers.
+
+Each seed re-simulates the four scans of ``catalog/specs/lair-pool.yaml`` (a Micron-like head with
+speckle, multipath, spikes, the vehicle's own echo and a biased, noisy compass), segments them with the
+site's segmentation, and runs the four stage plugins directly: localizer pairs → matcher → localizer →
+mapper → comparator with the site record's references (10 probes each).
+
+Usage::
+
+    .venv/bin/python benchmarks/pool.py [--seeds 20] [--json] [--matcher-param key=value ...]
+
+A pair counts as a success when it converged within 0.10 m of the truth displacement expressed in the
+reference scan's compass frame (the map is drawn with the measured compass, so a common compass bias
+rotates every estimate alike and is not an error of the matcher).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+from cistern_archive.catalog.loader import load_record  # noqa: E402
+from cistern_archive.pipeline.registry import default_registry  # noqa: E402
+from cistern_archive.sonar.segmentation import segment  # noqa: E402
+from cistern_archive.sonar.simulator import simulate_site  # noqa: E402
+from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
+
+PAPER = {
+    "width_error_m": 3.47 - 3.61,
+    "length_error_m": 7.27 - 7.21,
+    "percent_difference": 3.30,
+    "probe_std_width_m": 0.119,
+    "probe_std_length_m": 0.060,
+}
+TARGETS = {
+    "median_abs_width_error_m": 0.05,
+    "median_abs_length_error_m": 0.05,
+    "percent_difference": 1.0,
+    "probe_std_width_m": 0.05,
+    "probe_std_length_m": 0.05,
+    "median_pair_seconds": 0.1,
+    "median_site_seconds": 5.0,
+}
+
+
+def parse_value(text: str) -> object:
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(text.lower(), text)
+
+
+def parse_overrides(items: list[str]) -> dict[str, object]:
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        out[key] = parse_value(value)
+    return out
+
+
+def expected_displacement(sim, i: int, j: int) -> np.ndarray:
+    """Truth ``p_j - p_i`` rotated into scan i's measured-compass frame."""
+    a, b = sim.scans[i], sim.scans[j]
+    d = np.array([b.pose.x_m - a.pose.x_m, b.pose.y_m - a.pose.y_m])
+    err = a.scan.yaw_rad - a.pose.yaw_rad
+    c, s = math.cos(err), math.sin(err)
+    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+
+
+def run_seed(seed: int, spec, record, stages, params) -> dict:
+    sim = simulate_site(spec.model_copy(update={"seed": seed}))
+    matcher, localizer, mapper, comparator = stages
+    t0 = time.perf_counter()
+    scans = [segment(s.scan, spec.segmentation) for s in sim.scans]
+    pairs = localizer.pairs(len(scans), params["localizer"])
+    matches = []
+    for i, j in pairs:
+        rng = np.random.default_rng([seed, i, j])
+        m = matcher.match(scans[i], scans[j], params["matcher"], rng=rng)
+        matches.append(type(m)(**{**m.__dict__, "i": i, "j": j}))
+    poses = localizer.localize(scans, matches, params["localizer"])
+    grid = mapper.build(scans, poses, params["mapper"])
+    table = comparator.compare(grid, poses, record.references, record.station_index(), params["comparator"])
+    site_seconds = time.perf_counter() - t0
+    rows = {(r.name, r.reference_kind): r for r in table.rows}
+    ok = []
+    for m in matches:
+        if abs(m.i - m.j) != 1:
+            continue
+        err = float(np.hypot(*(np.array([m.dx_m, m.dy_m]) - expected_displacement(sim, m.i, m.j))))
+        ok.append(bool(m.converged and err <= 0.10))
+    return {
+        "seed": seed,
+        "width_error_m": rows[("width", "truth")].diff_m,
+        "length_error_m": rows[("length", "truth")].diff_m,
+        "percent_difference": table.stats.get("percent_difference", float("nan")),
+        "probe_std_width_m": table.stats.get("probe_std_width_m", float("nan")),
+        "probe_std_length_m": table.stats.get("probe_std_length_m", float("nan")),
+        "mosaic_width_diff_m": rows[("width", "mosaic")].diff_m,
+        "mosaic_length_diff_m": rows[("length", "mosaic")].diff_m,
+        "pair_ok": ok,
+        "pair_seconds": [m.seconds for m in matches],
+        "placed": int(poses.placed.sum()),
+        "site_seconds": site_seconds,
+    }
+
+
+def summarise(runs: list[dict]) -> dict:
+    def med(key: str) -> float:
+        return float(statistics.median(r[key] for r in runs))
+
+    def worst(key: str) -> float:
+        return float(max(abs(r[key]) for r in runs))
+
+    pair_ok = [ok for r in runs for ok in r["pair_ok"]]
+    return {
+        "seeds": len(runs),
+        "median_abs_width_error_m": float(statistics.median(abs(r["width_error_m"]) for r in runs)),
+        "worst_abs_width_error_m": worst("width_error_m"),
+        "median_abs_length_error_m": float(statistics.median(abs(r["length_error_m"]) for r in runs)),
+        "worst_abs_length_error_m": worst("length_error_m"),
+        "median_width_error_m": med("width_error_m"),
+        "median_length_error_m": med("length_error_m"),
+        "percent_difference": med("percent_difference"),
+        "worst_percent_difference": worst("percent_difference"),
+        "probe_std_width_m": med("probe_std_width_m"),
+        "probe_std_length_m": med("probe_std_length_m"),
+        "median_abs_mosaic_width_diff_m": float(statistics.median(abs(r["mosaic_width_diff_m"]) for r in runs)),
+        "median_abs_mosaic_length_diff_m": float(statistics.median(abs(r["mosaic_length_diff_m"]) for r in runs)),
+        "pair_success_rate": sum(pair_ok) / len(pair_ok) if pair_ok else float("nan"),
+        "scans_placed_fraction": sum(r["placed"] for r in runs) / (4 * len(runs)),
+        "median_pair_seconds": float(statistics.median(s for r in runs for s in r["pair_seconds"])),
+        "median_site_seconds": med("site_seconds"),
+        "worst_site_seconds": float(max(r["site_seconds"] for r in runs)),
+    }
+
+
+def print_table(summary: dict) -> None:
+    lines = [
+        ("|width error| median / worst (m)", f"{summary['median_abs_width_error_m']:.3f} / {summary['worst_abs_width_error_m']:.3f}",
+         f"{abs(PAPER['width_error_m']):.3f}", "<= 0.05"),
+        ("|length error| median / worst (m)", f"{summary['median_abs_length_error_m']:.3f} / {summary['worst_abs_length_error_m']:.3f}",
+         f"{abs(PAPER['length_error_m']):.3f}", "<= 0.05"),
+        ("percent difference median / worst (%)", f"{summary['percent_difference']:.2f} / {summary['worst_percent_difference']:.2f}",
+         f"{PAPER['percent_difference']:.2f}", "<= 1"),
+        ("probe std width (m)", f"{summary['probe_std_width_m']:.3f}", f"{PAPER['probe_std_width_m']:.3f}", "<= 0.05"),
+        ("probe std length (m)", f"{summary['probe_std_length_m']:.3f}", f"{PAPER['probe_std_length_m']:.3f}", "<= 0.05"),
+        ("neighbour pairs within 0.10 m", f"{100 * summary['pair_success_rate']:.1f} %", "-", ">= 95 %"),
+        ("median time per pair (s)", f"{summary['median_pair_seconds']:.3f}", "-", "<= 0.1"),
+        ("median / worst site time (s)", f"{summary['median_site_seconds']:.2f} / {summary['worst_site_seconds']:.2f}", "-", "<= 5"),
+    ]
+    print(f"{'metric':42s} {'measured':>18s} {'paper':>8s} {'target':>9s}")
+    for name, value, paper, target in lines:
+        print(f"{name:42s} {value:>18s} {paper:>8s} {target:>9s}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    for stage in ("matcher", "localizer", "mapper", "comparator"):
+        parser.add_argument(f"--{stage}-param", action="append", default=[], metavar="KEY=VALUE")
+    args = parser.parse_args(argv)
+
+    spec = load_spec(ROOT / "catalog" / "specs" / "lair-pool.yaml")
+    record = load_record(ROOT / "catalog" / "sites" / "lair-pool.yaml", ROOT / "catalog").record
+    registry = default_registry()
+    stages, params = [], {}
+    for stage in ("matcher", "localizer", "mapper", "comparator"):
+        choice = getattr(record.pipeline, stage)
+        loaded = registry.load(stage, choice.plugin)
+        stages.append(loaded.instance)
+        overrides = parse_overrides(getattr(args, f"{stage}_param"))
+        params[stage] = loaded.validate_params({**choice.params, **overrides})
+    runs = [run_seed(seed, spec, record, stages, params)
+            for seed in range(args.first_seed, args.first_seed + args.seeds)]
+    summary = summarise(runs)
+    summary["params"] = {k: v.model_dump() for k, v in params.items()}
+    print_table(summary)
+    if args.json:
+        print(json.dumps(summary, sort_keys=True))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,8 @@
+"""Preservation: content-addressed store of raw inputs, SQLite index with provenance events, fixity
+checks and BagIt export."""
+
+from cistern_archive.archive.fixity import FixityProblem, FixityReport, verify_archive
+from cistern_archive.archive.repository import Archive, IngestedInput, agent, default_archive_dir
+
+__all__ = ["Archive", "FixityProblem", "FixityReport", "IngestedInput", "agent", "default_archive_dir",
+           "verify_archive"]

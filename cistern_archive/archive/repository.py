@@ -1,0 +1,130 @@
+"""The archive: an object store plus its index, and the operations the service performs on them.
+
+Raw inputs are ingested by copy: the archive keeps its own read-only copy of every version of every
+input and never opens the originals for writing. Digests of unchanged files (same path, size and
+modification time as their last ingest) are taken from the index instead of being recomputed;
+``verify`` recomputes every stored object's digest.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from cistern_archive.archive.digest import file_sha256
+from cistern_archive.archive.index import Index
+from cistern_archive.archive.store import ObjectStore
+
+ARCHIVE_ENV = "CISTERN_ARCHIVE"
+INDEX_NAME = "index.sqlite"
+
+
+def agent() -> str:
+    """The agent recorded with every event: this software and its version."""
+    from cistern_archive import __version__
+
+    return f"cistern-archive {__version__}"
+
+
+def default_archive_dir(catalog: Path | None = None) -> Path:
+    """Where the archive lives when no ``--archive`` is given.
+
+    ``$CISTERN_ARCHIVE`` when set; otherwise ``.archive`` beside the catalog folder (for the bundled
+    ``catalog/`` that is ``.archive`` at the repository root), or in the working directory.
+    The archive is kept out of the published site folder: it holds raw data that reports may redact.
+    """
+    env = os.environ.get(ARCHIVE_ENV)
+    if env:
+        return Path(env)
+    if catalog is not None:
+        return Path(catalog).resolve().parent / ".archive"
+    return Path(".archive")
+
+
+@dataclass(frozen=True)
+class IngestedInput:
+    """One input file as the archive knows it."""
+
+    source: Path
+    relative_path: str
+    role: str
+    sha256: str
+    size: int
+    stored: bool
+    """True when this call added a new object to the store."""
+    digested: bool
+    """True when the digest was computed (not taken from the index)."""
+
+
+class Archive:
+    """Content-addressed store and SQLite index under one folder.
+
+    Parameters
+    ----------
+    root : Path
+        The archive folder; created (with ``objects/``, ``tmp/`` and ``index.sqlite``) when missing.
+    """
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.store = ObjectStore(self.root)
+        self.index = Index(self.root / INDEX_NAME)
+        self.agent = agent()
+
+    def close(self) -> None:
+        self.index.close()
+
+    def __enter__(self) -> "Archive":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def ingest(self, source: Path, *, site_id: str | None = None, role: str = "input",
+               relative_path: str | None = None, run_id: str | None = None) -> IngestedInput:
+        """Add a file to the archive (a no-op apart from the index when it is already there).
+
+        Parameters
+        ----------
+        source : Path
+            The raw file; only read.
+        site_id : str, optional
+            The site it belongs to.
+        role : str
+            ``scan``, ``record``, ``simulation`` or ``input``.
+        relative_path : str, optional
+            Its path inside the catalog (the name used in exports); the file name when omitted.
+        run_id : str, optional
+            The rebuild that ingested it.
+        """
+        source = Path(source).resolve()
+        info = source.stat()
+        relative_path = relative_path or source.name
+        cached = self.index.latest_input(str(source))
+        digested = True
+        if (cached is not None and cached["size"] == info.st_size and cached["mtime_ns"] == info.st_mtime_ns
+                and self.store.has(cached["sha256"])):
+            sha256, size, digested = cached["sha256"], cached["size"], False
+        else:
+            sha256, size = file_sha256(source)
+        stored = self.store.put(source, sha256) if not self.store.has(sha256) else None
+        with self.index.transaction():
+            if digested:
+                self.index.add_event("digest", agent=self.agent, outcome="success", run_id=run_id, site_id=site_id,
+                                     sha256=sha256, detail={"algorithm": "sha256", "source": str(source)})
+            if stored is not None:
+                self.index.add_object(sha256, stored.size)
+                self.index.add_event("ingest", agent=self.agent, outcome="success", run_id=run_id, site_id=site_id,
+                                     sha256=sha256, detail={"source": str(source), "size": stored.size})
+            changed = (cached is None or cached["sha256"] != sha256 or cached["site_id"] != site_id
+                       or cached["relative_path"] != relative_path or cached["mtime_ns"] != info.st_mtime_ns)
+            if changed:
+                if site_id is not None:
+                    self.index.touch_site(site_id)
+                self.index.add_input(site_id=site_id, role=role, source_path=str(source),
+                                     relative_path=relative_path, sha256=sha256, size=size,
+                                     mtime_ns=info.st_mtime_ns)
+        return IngestedInput(source=source, relative_path=relative_path, role=role, sha256=sha256, size=size,
+                             stored=stored is not None and stored.created, digested=digested)

@@ -1,0 +1,85 @@
+"""``cistern-archive inspect FILE``: read a recording and summarise its scans.
+
+``--json`` prints ``{"format": ..., "file": ..., "scans": [{"beams", "bins", "bin_size_m",
+"bearing_min_deg", "bearing_max_deg", ...}], "warnings": [...]}``. An unreadable file exits with
+``EXIT_USAGE`` (2) and a message naming the file and the byte offset or record.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from cistern_archive.commands import EXIT_USAGE
+from cistern_archive.errors import ReaderError
+from cistern_archive.sonar.scan import Scan
+
+
+def scan_summary(scan: Scan) -> dict:
+    """The per-scan numbers ``inspect`` reports (JSON-serialisable)."""
+    degrees = np.degrees(scan.bearings_rad)
+    return {
+        "beams": scan.n_beams,
+        "bins": scan.n_bins,
+        "bin_size_m": float(scan.bin_size_m),
+        "start_range_m": float(scan.start_range_m),
+        "max_range_m": float(scan.max_range_m),
+        "bearing_min_deg": float(degrees.min()),
+        "bearing_max_deg": float(degrees.max()),
+        "full_scale": float(scan.full_scale),
+        "timestamp": None if math.isnan(scan.timestamp) else float(scan.timestamp),
+        "yaw_deg": float(math.degrees(scan.yaw_rad)),
+        "depth_m": float(scan.depth_m),
+        "sonar_model": scan.sonar_model,
+    }
+
+
+def inspect_file(path: Path, fmt: str | None = None) -> dict:
+    """Read ``path`` and return the ``inspect --json`` document; raises ReaderError when unreadable."""
+    from cistern_archive.sonar.readers import read_file
+
+    result = read_file(path, fmt)
+    return {"format": result.format, "file": str(path), "scans": [scan_summary(s) for s in result.scans],
+            "warnings": list(result.warnings)}
+
+
+def _print_table(doc: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    table = Table(title=f"{doc['file']} ({doc['format']}, {len(doc['scans'])} scans)")
+    for column in ("#", "beams", "bins", "bin size m", "max range m", "bearings deg", "full scale", "time"):
+        table.add_column(column, justify="right")
+    for i, s in enumerate(doc["scans"]):
+        table.add_row(str(i), str(s["beams"]), str(s["bins"]), f"{s['bin_size_m']:.5f}", f"{s['max_range_m']:.2f}",
+                      f"{s['bearing_min_deg']:.1f} .. {s['bearing_max_deg']:.1f}", f"{s['full_scale']:g}",
+                      "-" if s["timestamp"] is None else f"{s['timestamp']:.3f}")
+    console.print(table)
+    for warning in doc["warnings"]:
+        console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True, markup=False, highlight=False)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("inspect")
+    def inspect(
+        file: Path = typer.Argument(..., help="A sonar recording (V4LOG, raw SeaNet, UdpHubLog csv, Ping360 "
+                                                "log, marina .pcd, interchange .npz)."),
+        fmt: str = typer.Option(None, "--format", help="Reader to use (default: detected from the file)."),
+        as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+    ) -> None:
+        """Read a recording and list its scans: beams, bins, bin size and bearing span."""
+        try:
+            doc = inspect_file(file, fmt)
+        except ReaderError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            # SystemExit carries the code through ``cli.main`` (which runs click with standalone_mode=False)
+            raise SystemExit(EXIT_USAGE) from None
+        if as_json:
+            typer.echo(json.dumps(doc, indent=2, allow_nan=False))
+        else:
+            _print_table(doc)

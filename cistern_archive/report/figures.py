@@ -1,0 +1,341 @@
+"""The report's figures, drawn with matplotlib's Agg canvas (no display, no pyplot state).
+
+* the evidence grid with the scan stations and the pair links (converged or not, line width by weight);
+* per pair, the particle filter's convergence (the exponential weight and std averages of eqs. 5–6
+  over the iterations) and its particles over the reference map, like the paper's Fig. 6 (the
+  reference station in yellow, particles green to white as their weight grows);
+* raw and segmented scan fans (:func:`cistern_archive.sonar.fan.fan_png`);
+* the probe lines of each measured dimension over the grid (the paper's 10 probes, Sec. IV);
+* the index thumbnail and a one-pixel-per-cell PNG of every slice.
+
+Every function writes one PNG with :func:`cistern_archive.report.files.save_figure` (no metadata) and
+returns a :class:`FigureFile` with the title, alt text and caption the page shows.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib import rcParams
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import LinearSegmentedColormap
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from cistern_archive.pipeline.contracts import DimensionTable, EvidenceGrid, MatchResult, Poses
+from cistern_archive.report.files import save_figure, write_png
+from cistern_archive.sonar.scan import RangeScan, Scan
+
+rcParams["svg.hashsalt"] = "cistern-archive"
+rcParams["path.simplify"] = True
+
+PARTICLES = LinearSegmentedColormap.from_list("particles", ["#0b6623", "#3cb043", "#ffffff"])
+GRID_CMAP = "gray_r"
+LINK_OK, LINK_BAD = "#1b7837", "#c51b7d"
+DIMENSION_COLOURS = ("#e66101", "#5e3c99", "#1a9641", "#d7191c", "#2b83ba", "#a6611a")
+
+
+@dataclass(frozen=True)
+class FigureFile:
+    """A figure written beside the page."""
+
+    key: str
+    file: str
+    title: str
+    alt: str
+    caption: str = ""
+
+
+def _figure(width_in: float, height_in: float, dpi: int, **margins: float) -> Figure:
+    """A figure on its own Agg canvas with fixed margins (fractions of the figure; a constraint
+    solver would cost more than the drawing)."""
+    figure = Figure(figsize=(width_in, height_in), dpi=dpi)
+    FigureCanvasAgg(figure)
+    figure.subplots_adjust(**{"left": 0.1, "right": 0.95, "bottom": 0.1, "top": 0.92, **margins})
+    return figure
+
+
+def _station_labels(scans: Sequence[RangeScan | Scan], n: int) -> list[str]:
+    return [scans[k].station if k < len(scans) and scans[k].station else f"scan {k}" for k in range(n)]
+
+
+def choose_slice(grids: Sequence[EvidenceGrid], depth_m: float | None) -> EvidenceGrid:
+    """The slice nearest ``depth_m`` (the first when it is ``None``)."""
+    if depth_m is None:
+        return grids[0]
+    return min(grids, key=lambda g: (abs(g.depth_m - depth_m), g.depth_m))
+
+
+def _draw_grid(ax, grid: EvidenceGrid) -> None:
+    ax.imshow(grid.probability(), cmap=GRID_CMAP, vmin=0.0, vmax=1.0, origin="lower", extent=grid.extent_m,
+              interpolation="nearest")
+    ax.set_xlabel("x, east (m)")
+    ax.set_ylabel("y, north (m)")
+    ax.set_aspect("equal")
+
+
+def map_figure(
+    path: Path,
+    grid: EvidenceGrid | None,
+    poses: Poses | None,
+    matches: Sequence[MatchResult],
+    labels: Sequence[str],
+    *,
+    dpi: int,
+) -> FigureFile:
+    """The evidence grid with stations and pair links.
+
+    Links join placed stations: solid green for converged matches, dashed magenta for the others, the
+    width growing with the match weight (relative to the largest weight of the site).
+    """
+    fig = _figure(7.2, 6.0, dpi, left=0.1, right=0.72, bottom=0.09, top=0.93)
+    ax = fig.add_subplot()
+    if grid is not None:
+        _draw_grid(ax, grid)
+    else:
+        ax.set_xlabel("x, east (m)")
+        ax.set_ylabel("y, north (m)")
+        ax.set_aspect("equal")
+    placed = [] if poses is None else [k for k in range(len(poses.placed)) if poses.placed[k]]
+    if poses is not None and matches:
+        weights = np.array([m.weight for m in matches], dtype=float)
+        scale = float(np.nanmax(np.abs(weights))) if np.isfinite(weights).any() else 1.0
+        for m in sorted(matches, key=lambda m: (m.converged, m.i, m.j)):
+            if not (0 <= m.i < len(poses.placed) and 0 <= m.j < len(poses.placed)):
+                continue
+            if not (poses.placed[m.i] and poses.placed[m.j]):
+                continue
+            a, b = poses.xy_m[m.i], poses.xy_m[m.j]
+            width = 0.8 + 3.0 * (abs(m.weight) / scale if scale > 0 and math.isfinite(m.weight) else 0.0)
+            ax.plot([a[0], b[0]], [a[1], b[1]], color=LINK_OK if m.converged else LINK_BAD,
+                    linestyle="-" if m.converged else "--", linewidth=width, alpha=0.85, zorder=2)
+    if poses is not None and placed:
+        xy = poses.xy_m[placed]
+        ref = poses.reference
+        ax.scatter(xy[:, 0], xy[:, 1], s=60, c="#2166ac", edgecolors="white", linewidths=1.0, zorder=3)
+        if 0 <= ref < len(poses.placed) and poses.placed[ref]:
+            ax.scatter([poses.xy_m[ref, 0]], [poses.xy_m[ref, 1]], s=140, marker="*", c="#ffd92f",
+                       edgecolors="black", linewidths=0.8, zorder=4)
+        for k in placed:
+            ax.annotate(labels[k], poses.xy_m[k], xytext=(6, 6), textcoords="offset points", fontsize=9,
+                        color="#08306b", fontweight="bold", zorder=5)
+    handles = [Line2D([], [], color=LINK_OK, lw=2.5, label="converged match"),
+               Line2D([], [], color=LINK_BAD, lw=1.5, ls="--", label="not converged"),
+               Line2D([], [], marker="o", ls="", mfc="#2166ac", mec="white", ms=8, label="scan station"),
+               Line2D([], [], marker="*", ls="", mfc="#ffd92f", mec="black", ms=12, label="reference scan")]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    depth = "" if grid is None else f" at depth {grid.depth_m:.2f} m"
+    ax.set_title(f"Evidence grid{depth}", fontsize=11)
+    save_figure(fig, path, dpi=dpi)
+    unplaced = [labels[k] for k in range(len(labels)) if poses is None or not poses.placed[k]]
+    caption = (
+        f"Occupancy probability (black occupied, white free, grey unknown){depth}; "
+        f"{len(placed)} of {len(labels)} scans placed"
+        + (f" (not placed: {', '.join(unplaced)})" if unplaced else "")
+        + "; lines are pair matches, solid when converged, wider for larger weights."
+    )
+    return FigureFile("map", path.name, "Map with scan stations and pair links",
+                      f"Top-down evidence grid map{depth} with {len(placed)} scan stations and "
+                      f"{len(matches)} pair-match links", caption)
+
+
+def _thresholds(matcher_params: dict) -> tuple[float | None, float | None]:
+    """τ_pw (eq. 6) and the std threshold r_c (eq. 5) from the matcher's recorded parameters."""
+    tau = matcher_params.get("tau_pw")
+    cell = matcher_params.get("cell_m")
+    return (float(tau) if isinstance(tau, int | float) else None,
+            float(cell) if isinstance(cell, int | float) else None)
+
+
+def pair_figure(
+    path: Path,
+    match: MatchResult,
+    reference: RangeScan | None,
+    labels: Sequence[str],
+    *,
+    matcher_params: dict,
+    truth: tuple[float, float] | None,
+    dpi: int,
+) -> FigureFile:
+    """Convergence of one pair and its particles over the reference scan's map (paper Fig. 6).
+
+    The right panel is in the reference station's frame, compass aligned: the reference echoes
+    (``m_i``), the reference station (yellow star) at the origin, the particles of the moving station
+    from the first (faint) to the last snapshot (green to white by weight), the estimate (red cross)
+    and, for simulated sites, the true position (cyan ring).
+    """
+    name_i, name_j = labels[match.i], labels[match.j]
+    fig = _figure(10.0, 4.2, dpi, left=0.07, right=0.8, bottom=0.12, top=0.9, wspace=0.45)
+    left, right = fig.subplots(1, 2, width_ratios=[1.0, 1.0])
+    tau, r_c = _thresholds(matcher_params)
+    hist = match.history
+    if hist is not None and len(hist.weight_avg):
+        it = np.arange(1, len(hist.weight_avg) + 1)
+        left.plot(it, hist.weight_avg, color="#1b7837", lw=1.8, label="weight average (eq. 6)")
+        if tau is not None:
+            left.axhline(tau, color="#1b7837", ls=":", lw=1.2, label="τ_pw")
+        left.set_ylabel("weight average", color="#1b7837")
+        twin = left.twinx()
+        twin.plot(it, hist.std_avg, color="#b2182b", lw=1.8, label="std average (eq. 5)")
+        if r_c is not None:
+            twin.axhline(r_c, color="#b2182b", ls=":", lw=1.2, label="r_c")
+        twin.set_ylabel("std average (m)", color="#b2182b")
+        twin.set_yscale("log")
+        lines = left.get_lines() + twin.get_lines()
+        left.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="center right")
+        left.set_xlabel("iteration")
+    else:
+        left.text(0.5, 0.5, "no convergence history recorded", ha="center", va="center", transform=left.transAxes)
+        left.set_axis_off()
+    left.set_title(f"Convergence: {name_j} in {name_i}'s map", fontsize=10)
+
+    right.set_facecolor("#111111")
+    if reference is not None:
+        pts = reference.points()
+        right.plot(pts[:, 0], pts[:, 1], ".", ms=2.0, color="#9e9e9e", label=f"{name_i} echoes (m_i)")
+    snaps = hist.snapshots if hist is not None else ()
+    for k, snap in enumerate(snaps):
+        snap = np.asarray(snap)
+        if snap.size == 0:
+            continue
+        order = np.argsort(snap[:, 3], kind="stable")
+        alpha = 0.25 + 0.75 * (k + 1) / len(snaps)
+        right.scatter(snap[order, 0], snap[order, 1], c=snap[order, 3], cmap=PARTICLES, s=5, alpha=alpha,
+                      linewidths=0, zorder=2)
+    right.scatter([0], [0], marker="*", s=160, c="#ffd92f", edgecolors="black", zorder=4, label=f"{name_i} (reference)")
+    if truth is not None:
+        right.scatter([truth[0]], [truth[1]], s=90, facecolors="none", edgecolors="#00e5ff", lw=1.5, zorder=4,
+                      label="true position")
+    if math.isfinite(match.dx_m) and math.isfinite(match.dy_m):
+        right.scatter([match.dx_m], [match.dy_m], marker="x", s=70, c="#ff1744", lw=2, zorder=5,
+                      label=f"estimate of {name_j}")
+    right.set_aspect("equal", adjustable="datalim")
+    right.set_xlabel("east of reference (m)")
+    right.set_ylabel("north of reference (m)")
+    right.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    state = "converged" if match.converged else "not converged"
+    right.set_title(f"Particles ({state}, weight {match.weight:.3g})", fontsize=10)
+    save_figure(fig, path, dpi=dpi)
+    snaps_at = ", ".join(str(i) for i in (hist.snapshot_iterations if hist else ()))
+    caption = (
+        f"Pair {name_i} → {name_j}: {state} after {match.iterations} iterations, "
+        f"d = ({match.dx_m:.3f}, {match.dy_m:.3f}) m, weight {match.weight:.3g}"
+        + (f"; particle snapshots at iterations {snaps_at}" if snaps_at else "")
+        + (f"; {match.reason}" if match.reason else "") + "."
+    )
+    return FigureFile(
+        f"pair-{match.i}-{match.j}", path.name, f"Pair {name_i} → {name_j}",
+        f"Left: weight and standard-deviation averages of the particle filter over iterations for {name_j} "
+        f"matched in {name_i}'s map. Right: particles over {name_i}'s echoes, {state}.",
+        caption,
+    )
+
+
+def fan_figure(path: Path, scan: Scan, ranged: RangeScan | None, segmentation, *, dpi: int) -> FigureFile:
+    """Raw and segmented fan of one scan (the segmented image of Sec. III-B and its ranges)."""
+    from cistern_archive.sonar.fan import fan_png
+    from cistern_archive.sonar.segmentation import segment_intensities
+
+    try:
+        segmented = segment_intensities(scan, segmentation)
+    except (ValueError, TypeError):
+        segmented = None
+    label = scan.station or path.stem
+    path.write_bytes(fan_png(scan, segmented=segmented, ranges=ranged, title=f"{label} · {scan.sonar_model}",
+                             pixels=320, dpi=dpi))
+    valid = int(np.count_nonzero(ranged.valid)) if ranged is not None else 0
+    caption = (f"{label}: {scan.n_beams} beams × {scan.n_bins} bins of {scan.bin_size_m:.3f} m, "
+               f"depth {scan.depth_m:.2f} m; {valid} beams with a wall echo after segmentation.")
+    return FigureFile(f"fan-{label}", path.name, f"Scan {label}",
+                      f"Sonar fan of scan {label}: raw intensities"
+                      + (" and the segmented image with its ranges" if segmented is not None else ""), caption)
+
+
+def probe_figure(path: Path, grids: Sequence[EvidenceGrid], table: DimensionTable, *, dpi: int) -> FigureFile:
+    """The probe lines of every dimension over the grid slice it was measured in."""
+    rows = [r for r in table.rows if r.probe_lines]
+    depths = sorted({choose_slice(grids, r.depth_m).depth_m for r in rows}) or [grids[0].depth_m]
+    width = 4.6 * len(depths) + 2.6
+    fig = _figure(width, 5.8, dpi, left=0.8 / width, right=1 - 2.5 / width, bottom=0.09, top=0.93, wspace=0.3)
+    axes = np.atleast_1d(fig.subplots(1, len(depths)))
+    handles = []
+    for ax, depth in zip(axes, depths):
+        grid = choose_slice(grids, depth)
+        _draw_grid(ax, grid)
+        ax.set_title(f"Probes at depth {grid.depth_m:.2f} m", fontsize=10)
+        for k, row in enumerate(table.rows):
+            if not row.probe_lines or choose_slice(grids, row.depth_m).depth_m != depth:
+                continue
+            colour = DIMENSION_COLOURS[k % len(DIMENSION_COLOURS)]
+            for x0, y0, x1, y1 in row.probe_lines:
+                ax.plot([x0, x1], [y0, y1], color=colour, lw=1.2, alpha=0.9)
+                ax.plot([x0, x1], [y0, y1], "|" if abs(y1 - y0) < abs(x1 - x0) else "_", color=colour, ms=6)
+    for k, row in enumerate(table.rows):
+        if row.probe_lines:
+            handles.append(Line2D([], [], color=DIMENSION_COLOURS[k % len(DIMENSION_COLOURS)], lw=2,
+                                  label=f"{row.name}: {row.map_m:.3f} m ({len(row.probe_lines)} probes)"))
+    if handles:
+        axes[-1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    save_figure(fig, path, dpi=dpi)
+    names = ", ".join(f"{r.name} ({len(r.probe_lines)})" for r in rows)
+    return FigureFile("probes", path.name, "Probe lines of the measured dimensions",
+                      f"Evidence grid with the probe lines used to measure {names or 'no dimension'}",
+                      "Each line runs between the inner faces of two walls; a dimension's map value is the "
+                      "mean of its probes (see the dimension table).")
+
+
+def slices_figure(path: Path, grids: Sequence[EvidenceGrid], *, dpi: int) -> FigureFile:
+    """Small multiples of every depth slice on a common extent."""
+    n = len(grids)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig = _figure(3.2 * cols, 3.4 * rows, dpi, left=0.12, right=0.97, bottom=0.1, top=0.92, wspace=0.4,
+                  hspace=0.35)
+    axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
+    xmin = min(g.extent_m[0] for g in grids)
+    xmax = max(g.extent_m[1] for g in grids)
+    ymin = min(g.extent_m[2] for g in grids)
+    ymax = max(g.extent_m[3] for g in grids)
+    for ax, grid in zip(axes, grids):
+        _draw_grid(ax, grid)
+        ax.set_xlim(xmin, xmax)
+        ax.set_ylim(ymin, ymax)
+        ax.set_title(f"depth {grid.depth_m:.2f} m", fontsize=9)
+    for ax in axes[n:]:
+        ax.set_axis_off()
+    save_figure(fig, path, dpi=dpi)
+    return FigureFile("slices", path.name, "Depth slices",
+                      f"{n} evidence-grid slices from {grids[0].depth_m:.2f} m to {grids[-1].depth_m:.2f} m depth",
+                      "The slices the 3D model interpolates between, shallowest first.")
+
+
+def grid_png(path: Path, grid: EvidenceGrid) -> Path:
+    """One pixel per cell, north up, black occupied, white free, grey unknown."""
+    prob = grid.probability()
+    image = np.round(255 * (1.0 - prob[::-1])).astype(np.uint8)
+    return write_png(path, image)
+
+
+def thumbnail(path: Path, grid: EvidenceGrid, poses: Poses | None, *, width_px: int) -> Path:
+    """A small map for the catalog index (grid and stations, no axes)."""
+    x0, x1, y0, y1 = grid.extent_m
+    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
+    width_in = width_px / 100
+    height_in = float(np.clip(width_in * aspect, width_in * 0.5, width_in * 1.5))
+    fig = Figure(figsize=(width_in, height_in), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.imshow(grid.probability(), cmap=GRID_CMAP, vmin=0, vmax=1, origin="lower", extent=grid.extent_m,
+              interpolation="nearest")
+    if poses is not None and poses.placed.any():
+        xy = poses.xy_m[poses.placed]
+        ax.scatter(xy[:, 0], xy[:, 1], s=14, c="#2166ac", edgecolors="white", linewidths=0.6)
+    ax.set_aspect("equal")
+    ax.set_axis_off()
+    fig.set_facecolor("white")
+    save_figure(fig, path, dpi=100)
+    return path

@@ -1,0 +1,221 @@
+"""The 3D model of a site: isosurface of the occupancy volume, smoothed, decimated, rendered and exported.
+
+Sec. III-E of the paper visualises the evidence grid "using isosurface extraction". Here the volume of
+:func:`cistern_archive.grid.volume.stack_slices` is blurred slightly, closed with a border of free space
+so that the surface has caps, and cut at ``iso_level`` with :func:`skimage.measure.marching_cubes`.
+The mesh is Taubin-smoothed (no shrinkage) and quadric-decimated to ``max_faces`` triangles.
+
+Mesh coordinates are the map frame in metres with z up (``z = -depth``); the point array ``depth_m``
+holds the depth the renders are coloured by.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+from skimage.measure import marching_cubes
+
+from cistern_archive.grid.volume import Volume
+from cistern_archive.report import offscreen
+from cistern_archive.report.config import ReportConfig
+from cistern_archive.report.files import write_png
+
+COLORMAP = "viridis"
+
+
+@dataclass(frozen=True)
+class View:
+    """One fixed camera of the renders."""
+
+    key: str
+    title: str
+    alt: str
+
+
+VIEWS = (
+    View("top", "Top view", "The 3D model seen from above, walls coloured by depth"),
+    View("oblique-ne", "Oblique view from the north-east", "The 3D model seen obliquely from the north-east"),
+    View("oblique-sw", "Oblique view from the south-west", "The 3D model seen obliquely from the south-west"),
+    View(
+        "section",
+        "Vertical section",
+        "The 3D model cut by a vertical plane through its centre along its longer axis, seen from the side",
+    ),
+)
+
+
+def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0):
+    """Triangle mesh of the surface ``probability == level`` (a :class:`pyvista.PolyData`).
+
+    Parameters
+    ----------
+    volume : Volume
+    level : float
+        Occupancy probability of the surface; unknown space is 0.5, so a level above 0.5 wraps the
+        occupied cells only.
+    sigma_cells : float, keyword-only
+        Gaussian blur (in horizontal cells; scaled to the layer spacing vertically) before meshing.
+
+    Returns
+    -------
+    pyvista.PolyData or None
+        ``None`` when no voxel reaches ``level``.
+    """
+    import pyvista
+
+    field = np.asarray(volume.probability, dtype=np.float32)
+    if sigma_cells > 0:
+        sigma_z = sigma_cells * volume.cell_m / volume.dz_m
+        field = ndimage.gaussian_filter(field, sigma=(sigma_z, sigma_cells, sigma_cells), mode="nearest")
+    if not np.any(field >= level):
+        return None
+    padded = np.pad(field, 1, mode="constant", constant_values=0.0)
+    verts, faces, _, _ = marching_cubes(
+        padded, level=level, spacing=(volume.dz_m, volume.cell_m, volume.cell_m), allow_degenerate=False
+    )
+    depth = volume.depths_m[0] + verts[:, 0] - volume.dz_m
+    x = volume.origin_xy_m[0] + verts[:, 2] - volume.cell_m + 0.5 * volume.cell_m
+    y = volume.origin_xy_m[1] + verts[:, 1] - volume.cell_m + 0.5 * volume.cell_m
+    points = np.column_stack([x, y, -depth]).astype(np.float64)
+    cells = np.column_stack([np.full(len(faces), 3), faces]).astype(np.int64).ravel()
+    return pyvista.PolyData(points, cells)
+
+
+def build_mesh(volume: Volume, config: ReportConfig):
+    """Isosurface, smooth and decimate; returns the mesh with ``depth_m`` and normals, or ``None``."""
+    mesh = isosurface(volume, level=config.iso_level, sigma_cells=config.smooth_sigma_cells)
+    if mesh is None or mesh.n_cells == 0:
+        return None
+    if config.smooth_iterations:
+        mesh = mesh.smooth_taubin(n_iter=config.smooth_iterations, pass_band=0.1)
+    if mesh.n_cells > config.max_faces:
+        mesh = mesh.decimate(1.0 - config.max_faces / mesh.n_cells, volume_preservation=True)
+    mesh = mesh.compute_normals(cell_normals=False, point_normals=True, split_vertices=False, auto_orient_normals=False)
+    mesh.point_data["depth_m"] = (-mesh.points[:, 2]).astype(np.float32)
+    return mesh
+
+
+def nice_length(span_m: float) -> float:
+    """A round scale-bar length (1, 2 or 5 × 10^k) of about a quarter of ``span_m``."""
+    target = max(span_m / 4.0, 1e-3)
+    power = 10.0 ** np.floor(np.log10(target))
+    for step in (5.0, 2.0, 1.0):
+        if step * power <= target:
+            return float(step * power)
+    return float(power)
+
+
+def _camera(view: str, bounds: tuple[float, ...]) -> tuple[tuple[float, float, float], ...]:
+    """Position, focal point and view-up of a fixed view."""
+    x0, x1, y0, y1, z0, z1 = bounds
+    centre = ((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2)
+    radius = max(x1 - x0, y1 - y0, z1 - z0, 1e-3)
+    cx, cy, cz = centre
+    if view == "top":
+        return (cx, cy, cz + 3 * radius), centre, (0.0, 1.0, 0.0)
+    if view == "oblique-ne":
+        return (cx + 1.6 * radius, cy + 1.6 * radius, cz + 1.4 * radius), centre, (0.0, 0.0, 1.0)
+    if view == "oblique-sw":
+        return (cx - 1.6 * radius, cy - 1.6 * radius, cz + 1.4 * radius), centre, (0.0, 0.0, 1.0)
+    # section: cut along the longer horizontal axis, look at the cut face
+    if (x1 - x0) >= (y1 - y0):
+        return (cx, cy - 3 * radius, cz), centre, (0.0, 0.0, 1.0)
+    return (cx + 3 * radius, cy, cz), centre, (0.0, 0.0, 1.0)
+
+
+def _section(mesh):
+    """The half of the mesh behind the vertical plane through its centre, along the longer axis."""
+    x0, x1, y0, y1, _, _ = mesh.bounds
+    centre = ((x0 + x1) / 2, (y0 + y1) / 2, 0.0)
+    if (x1 - x0) >= (y1 - y0):
+        return mesh.clip(normal=(0.0, -1.0, 0.0), origin=centre)
+    return mesh.clip(normal=(1.0, 0.0, 0.0), origin=centre)
+
+
+def scale_bar(view: str, bounds: tuple[float, ...], length: float) -> tuple[np.ndarray, np.ndarray]:
+    """End points of the scale bar: along the model's bottom edge nearest the camera, just outside it
+    (along y for a section seen from +x)."""
+    x0, x1, y0, y1, z0, z1 = bounds
+    margin = 0.08 * max(x1 - x0, y1 - y0, 1e-3)
+    if view == "top":
+        a, b = (x0, y0 - margin, z1), (x0 + length, y0 - margin, z1)
+    elif view == "oblique-ne":
+        a, b = (x1 - length, y1 + margin, z0), (x1, y1 + margin, z0)
+    elif view == "oblique-sw":
+        a, b = (x0, y0 - margin, z0), (x0 + length, y0 - margin, z0)
+    elif (x1 - x0) >= (y1 - y0):
+        a, b = (x0, (y0 + y1) / 2, z0 - margin), (x0 + length, (y0 + y1) / 2, z0 - margin)
+    else:
+        a, b = ((x0 + x1) / 2, y0, z0 - margin), ((x0 + x1) / 2, y0 + length, z0 - margin)
+    return np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+
+
+def label_offset(view: str, bounds: tuple[float, ...]) -> np.ndarray:
+    """Shift of the scale bar's label away from the model, so that it does not sit on the bar."""
+    x0, x1, y0, y1, _, _ = bounds
+    step = 0.06 * max(x1 - x0, y1 - y0, 1e-3)
+    return {"top": np.array([0.0, -step, 0.0]), "oblique-ne": np.array([0.0, step, 0.0]),
+            "oblique-sw": np.array([0.0, -step, 0.0])}.get(view, np.array([0.0, 0.0, -step]))
+
+
+def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tuple[float, float]) -> dict[str, str]:
+    """Render :data:`VIEWS` off screen into ``out_dir/model-<view>.png``.
+
+    One plotter renders every view: the model (or its section) coloured by depth with a depth colour
+    bar, and a black scale bar of a round length with its label.
+
+    Returns
+    -------
+    dict
+        View key → file name.
+    """
+    import pyvista
+
+    offscreen.configure()
+    files: dict[str, str] = {}
+    bounds = tuple(float(v) for v in mesh.bounds)
+    length = nice_length(max(bounds[1] - bounds[0], bounds[3] - bounds[2]))
+    section = _section(mesh)
+    if section.n_points == 0:
+        section = mesh
+    plotter = pyvista.Plotter(off_screen=True, window_size=list(config.window_px))
+    try:
+        plotter.set_background("white")
+        style = dict(scalars="depth_m", cmap=COLORMAP, clim=depth_range, smooth_shading=True, specular=0.2)
+        bar = dict(title="Depth (m)", color="black", vertical=True, n_labels=5, fmt="%.1f", position_x=0.86,
+                   position_y=0.12, width=0.07, height=0.76, title_font_size=16, label_font_size=14)
+        whole = plotter.add_mesh(mesh, scalar_bar_args=bar, **style)
+        cut = plotter.add_mesh(section, show_scalar_bar=False, **style)
+        for view in VIEWS:
+            plotter.suppress_rendering = True
+            whole.SetVisibility(view.key != "section")
+            cut.SetVisibility(view.key == "section")
+            a, b = scale_bar(view.key, bounds, length)
+            plotter.add_mesh(pyvista.Line(a, b), color="black", line_width=5, name="scale-bar")
+            plotter.add_point_labels(
+                [(a + b) / 2 + label_offset(view.key, bounds)], [f"{length:g} m"], name="scale-label", font_size=20, text_color="black",
+                shape=None, show_points=False, always_visible=True, justification_horizontal="center",
+            )
+            position, focal, up = _camera(view.key, bounds)
+            plotter.camera_position = [position, focal, up]
+            plotter.camera.parallel_projection = view.key in ("top", "section")
+            plotter.reset_camera()
+            plotter.camera.zoom(1.1 if view.key.startswith("oblique") else 0.95)
+            plotter.suppress_rendering = False
+            plotter.render()
+            image = plotter.screenshot(return_img=True)
+            name = f"model-{view.key}.png"
+            write_png(out_dir / name, np.asarray(image, dtype=np.uint8))
+            files[view.key] = name
+    finally:
+        plotter.close()
+    return files
+
+
+def export_ply(mesh, path: Path) -> Path:
+    """Binary PLY of the mesh (map frame, metres, z up)."""
+    mesh.save(str(path), binary=True)
+    return path

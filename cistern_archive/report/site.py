@@ -1,0 +1,446 @@
+"""One site's report: figures, 3D model, arrays, tables and ``index.html`` in the site folder.
+
+:func:`render_site` works from whatever a :class:`~cistern_archive.pipeline.results.SiteBuild` holds,
+so a failed build still gets a page (its error, stage and input, and the arrays it reached).
+Every file name is fixed or derived from a title; nothing depends on the clock unless
+``SOURCE_DATE_EPOCH`` is set, so the same build gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cistern_archive import __version__
+from cistern_archive.errors import CisternError
+from cistern_archive.grid.volume import stack_slices
+from cistern_archive.pipeline.results import SiteBuild, SiteResult
+from cistern_archive.report import figures as fig
+from cistern_archive.report import model3d, offscreen
+from cistern_archive.report.config import ReportConfig
+from cistern_archive.report.files import (
+    build_time_from_env,
+    format_number,
+    format_time,
+    unique_slugs,
+    write_csv,
+    write_npz,
+)
+from cistern_archive.report.gltf import write_glb
+from cistern_archive.report.html import number, render_site_page, signed
+from cistern_archive.sonar.scan import compass_deg_from_yaw
+
+SECTION_TITLES = {
+    "failure": "Build failed",
+    "summary": "Summary",
+    "map": "Map",
+    "model": "3D model",
+    "dimensions": "Dimensions",
+    "pairs": "Pair matches",
+    "pair_figures": "Convergence and particles of each pair",
+    "scans": "Scans",
+    "fans": "Scan fans",
+    "provenance": "Parameters and provenance",
+    "downloads": "Downloads",
+}
+TOC = ("failure", "summary", "map", "model", "dimensions", "pairs", "scans", "provenance", "downloads")
+
+
+@dataclass
+class ModelOutcome:
+    """What the 3D step produced: rendered views, exported files, or why there is no model."""
+
+    views: list[fig.FigureFile] = field(default_factory=list)
+    files: dict[str, str] = field(default_factory=dict)
+    note: str = ""
+    missing: str = ""
+
+
+def station_labels(build: SiteBuild) -> list[str]:
+    """A label per scan: the station of the result, of the raw or the segmented scan, else its index."""
+    n = max(len(build.result.scans), len(build.raw_scans), len(build.range_scans),
+            0 if build.poses is None else len(build.poses.placed))
+    labels = []
+    for k in range(n):
+        label = ""
+        if k < len(build.result.scans):
+            label = build.result.scans[k].id
+        if not label and k < len(build.raw_scans):
+            label = build.raw_scans[k].station
+        if not label and k < len(build.range_scans):
+            label = build.range_scans[k].station
+        labels.append(label or f"scan {k}")
+    return labels
+
+
+def location_text(record: Any) -> str:
+    """The place, with coordinates only when the record does not ask to redact them."""
+    location = getattr(record, "location", None)
+    if location is None:
+        return "not recorded"
+    place = location.place or "place not recorded"
+    if location.redact:
+        return f"{place} (exact coordinates withheld to protect the site)"
+    if location.latitude is None or location.longitude is None:
+        return place
+    lat = f"{abs(location.latitude):.5f}° {'N' if location.latitude >= 0 else 'S'}"
+    lon = f"{abs(location.longitude):.5f}° {'E' if location.longitude >= 0 else 'W'}"
+    return f"{place} ({lat}, {lon})"
+
+
+def sonar_text(record: Any) -> str:
+    sonar = getattr(record, "sonar", None)
+    if sonar is None:
+        return "not recorded"
+    parts = [sonar.model]
+    if sonar.frequency_khz:
+        parts.append(f"{sonar.frequency_khz:g} kHz")
+    if sonar.range_m:
+        parts.append(f"range {sonar.range_m:g} m")
+    if sonar.step_deg:
+        parts.append(f"step {sonar.step_deg:g}°")
+    parts.append(f"beam width {sonar.beam_width_deg:g}°")
+    return ", ".join(parts)
+
+
+def human_size(n_bytes: int) -> str:
+    if n_bytes < 1024:
+        return f"{n_bytes} B"
+    if n_bytes < 1024 ** 2:
+        return f"{n_bytes / 1024:.1f} KiB"
+    return f"{n_bytes / 1024 ** 2:.1f} MiB"
+
+
+# ------------------------------------------------------------------------------------------ arrays
+def write_arrays(build: SiteBuild, site_dir: Path) -> dict[str, str]:
+    """``grid.npz`` (every slice's log-odds, origin, cell and depth) and one PNG per slice."""
+    files: dict[str, str] = {}
+    if build.map_result is None or not build.map_result.grids:
+        return files
+    grids = build.map_result.grids
+    arrays: dict[str, np.ndarray] = {"depths_m": np.array([g.depth_m for g in grids], dtype=np.float64)}
+    for k, grid in enumerate(grids):
+        arrays[f"log_odds_{k}"] = np.asarray(grid.log_odds, dtype=np.float32)
+        arrays[f"origin_xy_m_{k}"] = np.asarray(grid.origin_xy_m, dtype=np.float64)
+        arrays[f"cell_m_{k}"] = np.asarray(grid.cell_m, dtype=np.float64)
+    write_npz(site_dir / "grid.npz", arrays)
+    files["grid"] = "grid.npz"
+    for k, grid in enumerate(grids):
+        name = f"grid-{k}.png"
+        fig.grid_png(site_dir / name, grid)
+        files[f"grid-png-{k}"] = name
+    return files
+
+
+def write_tables(result: SiteResult, labels: list[str], site_dir: Path) -> dict[str, str]:
+    """CSV files of the dimension, pair and scan tables."""
+    write_csv(site_dir / "dimensions.csv",
+              ["name", "reference_kind", "depth_m", "map_m", "reference_m", "diff_m", "diff_percent",
+               "probe_std_m", "n_probes", "probes_m"],
+              [[d.name, d.reference_kind, d.depth_m, d.map_m, d.reference_m, d.diff_m,
+                None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m, d.probe_std_m, len(d.probes_m),
+                ";".join(format_number(p, 4) for p in d.probes_m)] for d in result.dimensions])
+    write_csv(site_dir / "pairs.csv",
+              ["i", "j", "station_i", "station_j", "dx_m", "dy_m", "dyaw_rad", "weight", "converged",
+               "iterations", "seconds", "reason"],
+              [[p.i, p.j, _label(labels, p.i), _label(labels, p.j), p.dx_m, p.dy_m, p.dyaw_rad, p.weight,
+                str(p.converged).lower(), p.iterations, p.seconds, p.reason] for p in result.pairs])
+    write_csv(site_dir / "scans.csv",
+              ["index", "station", "file", "placed", "x_m", "y_m", "sigma_x_m", "sigma_y_m", "yaw_rad",
+               "heading_deg", "depth_m", "reason"],
+              [[s.index, s.id, s.file, str(s.placed).lower(), s.x_m, s.y_m, s.sigma_x_m, s.sigma_y_m, s.yaw_rad,
+                compass_deg_from_yaw(s.yaw_rad), s.depth_m, s.reason] for s in result.scans])
+    return {"dimensions-csv": "dimensions.csv", "pairs-csv": "pairs.csv", "scans-csv": "scans.csv"}
+
+
+def _label(labels: list[str], k: int) -> str:
+    return labels[k] if 0 <= k < len(labels) else f"scan {k}"
+
+
+# ------------------------------------------------------------------------------------------ figures
+def _scan_depth(build: SiteBuild) -> float | None:
+    depths = [s.depth_m for s in build.range_scans] or [s.depth_m for s in build.result.scans]
+    return float(np.median(depths)) if depths else None
+
+
+def _matcher_params(result: SiteResult) -> dict:
+    if result.provenance is None:
+        return {}
+    for plugin in result.provenance.plugins:
+        if plugin.stage == "matcher":
+            return dict(plugin.params)
+    return {}
+
+
+def _truth_offset(result: SiteResult, i: int, j: int) -> tuple[float, float] | None:
+    scans = result.scans
+    if not (0 <= i < len(scans) and 0 <= j < len(scans)):
+        return None
+    a, b = scans[i], scans[j]
+    if None in (a.truth_x_m, a.truth_y_m, b.truth_x_m, b.truth_y_m):
+        return None
+    return (b.truth_x_m - a.truth_x_m, b.truth_y_m - a.truth_y_m)
+
+
+def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: ReportConfig) -> dict[str, Any]:
+    """Every matplotlib figure of the page; returns ``map``, ``slices``, ``probes``, ``thumbnail``,
+    ``pairs`` (list) and ``fans`` (list) entries for what could be drawn."""
+    out: dict[str, Any] = {"pairs": [], "fans": [], "pairs_not_drawn": 0, "fans_not_drawn": 0}
+    grids = build.map_result.grids if build.map_result is not None else ()
+    grid = fig.choose_slice(grids, _scan_depth(build)) if grids else None
+    if grid is not None or build.poses is not None:
+        out["map"] = fig.map_figure(site_dir / "map.png", grid, build.poses, build.matches, labels, dpi=config.dpi)
+    if grid is not None:
+        fig.thumbnail(site_dir / "thumbnail.png", grid, build.poses, width_px=config.thumbnail_px)
+        out["thumbnail"] = "thumbnail.png"
+    if len(grids) > 1:
+        out["slices"] = fig.slices_figure(site_dir / "slices.png", grids, dpi=config.dpi)
+    if grids and build.table is not None and any(r.probe_lines for r in build.table.rows):
+        out["probes"] = fig.probe_figure(site_dir / "probes.png", grids, build.table, dpi=config.dpi)
+    params = _matcher_params(build.result)
+    matches = sorted(build.matches, key=lambda m: (m.i, m.j))
+    for m in matches[: config.max_pair_figures]:
+        reference = build.range_scans[m.i] if 0 <= m.i < len(build.range_scans) else None
+        out["pairs"].append(fig.pair_figure(
+            site_dir / f"pair-{m.i}-{m.j}.png", m, reference, labels, matcher_params=params,
+            truth=_truth_offset(build.result, m.i, m.j), dpi=config.dpi))
+    out["pairs_not_drawn"] = max(0, len(matches) - config.max_pair_figures)
+    segmentation = getattr(build.record, "segmentation", None)
+    for k, scan in enumerate(build.raw_scans[: config.max_fan_figures]):
+        ranged = build.range_scans[k] if k < len(build.range_scans) else None
+        out["fans"].append(fig.fan_figure(site_dir / f"fan-{k}.png", scan, ranged, segmentation, dpi=config.dpi))
+    out["fans_not_drawn"] = max(0, len(build.raw_scans) - config.max_fan_figures)
+    return out
+
+
+def build_model(build: SiteBuild, site_dir: Path, config: ReportConfig) -> ModelOutcome:
+    """Volume → mesh → PLY and GLB exports → off-screen renders (when rendering works here)."""
+    if not config.model:
+        return ModelOutcome(missing="The 3D model was not requested for this report.")
+    if build.map_result is None or not build.map_result.grids:
+        return ModelOutcome(missing="No 3D model: the build stopped before the mapping stage.")
+    volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
+    mesh = model3d.build_mesh(volume, config)
+    if mesh is None:
+        return ModelOutcome(missing=f"No 3D model: no cell of the map reaches occupancy {config.iso_level:g}.")
+    depth_range = (float(volume.depths_m[0]), float(volume.depths_m[-1]))
+    files = {"mesh-ply": model3d.export_ply(mesh, site_dir / "model.ply").name,
+             "mesh-gltf": write_glb(site_dir / "model.glb", mesh, colormap=model3d.COLORMAP,
+                                    depth_range=depth_range).name}
+    n = len(volume.slice_depths_m)
+    note = (f"one slice at {volume.slice_depths_m[0]:.2f} m extruded vertically from {depth_range[0]:.2f} m to "
+            f"{depth_range[1]:.2f} m, as in the paper" if n == 1 else
+            f"{n} slices from {volume.slice_depths_m[0]:.2f} m to {volume.slice_depths_m[-1]:.2f} m, "
+            "walls interpolated between them")
+    note += f"; {mesh.n_cells} triangles"
+    reason = offscreen.probe()
+    if reason:
+        return ModelOutcome(files=files, note=note, missing=f"3D views not rendered: {reason}. The mesh is still "
+                                                            "available under Downloads.")
+    rendered = model3d.render_views(mesh, site_dir, config, depth_range=depth_range)
+    views = [fig.FigureFile(f"model-{v.key}", rendered[v.key], v.title, v.alt,
+                            f"{v.title}; colour is depth below the surface (colour bar, metres).")
+             for v in model3d.VIEWS if v.key in rendered]
+    files.update({f"render-{v.key}": rendered[v.key] for v in model3d.VIEWS if v.key in rendered})
+    return ModelOutcome(views=views, files=files, note=note)
+
+
+# ------------------------------------------------------------------------------------------ page
+def _figure_view(f: fig.FigureFile, anchor: str, site_dir: Path) -> dict[str, Any]:
+    from PIL import Image
+
+    with Image.open(site_dir / f.file) as image:
+        width, height = image.size
+    return {"anchor": anchor, "file": f.file, "title": f.title, "alt": f.alt, "caption": f.caption,
+            "width": width, "height": height}
+
+
+def _dimension_rows(result: SiteResult) -> list[dict[str, str]]:
+    rows = []
+    for d in result.dimensions:
+        percent = None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m
+        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": number(d.map_m),
+                     "reference": number(d.reference_m), "diff": signed(d.diff_m), "percent": signed(percent, 2),
+                     "std": number(d.probe_std_m), "probes": str(len(d.probes_m)), "note": d.note})
+    return rows
+
+
+def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
+    rows = []
+    for key in sorted(stats):
+        value = stats[key]
+        label = key.replace("_", " ").capitalize()
+        if "percent" in key or key.endswith("_pct"):
+            text = "—" if value is None else f"{number(value, 2)} %"
+            label = label.replace(" pct", "")
+        else:
+            text = number(value, 3)
+        rows.append({"label": label, "value": text})
+    return rows
+
+
+def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], model: ModelOutcome,
+                 downloads: list[dict[str, str]], site_dir: Path) -> dict[str, Any]:
+    """Everything ``site.html.j2`` shows, as plain strings, lists and dicts."""
+    result = build.result
+    ids = dict(zip(SECTION_TITLES, unique_slugs(list(SECTION_TITLES.values()))))
+    sections = [{"id": ids[key], "title": SECTION_TITLES[key]} for key in TOC
+                if key != "failure" or result.failure is not None]
+    single = [(key, drawn[key]) for key in ("map", "slices", "probes") if key in drawn]
+    all_figures = single + [("pair", f) for f in drawn["pairs"]] + [("fan", f) for f in drawn["fans"]] + \
+        [("view", f) for f in model.views]
+    anchors = unique_slugs([f"figure {f.title}" for _, f in all_figures])
+    views = {id(f): _figure_view(f, a, site_dir) for (_, f), a in zip(all_figures, anchors)}
+    figures = {key: None for key in ("map", "slices", "probes")}
+    figures.update({key: views[id(f)] for key, f in single})
+    pair_anchor = {f.key: views[id(f)]["anchor"] for f in drawn["pairs"]}
+    pairs = [{"label": f"{_label(labels, p.i)} → {_label(labels, p.j)}", "dx": signed(p.dx_m), "dy": signed(p.dy_m),
+              "dyaw": signed(math.degrees(p.dyaw_rad), 2), "weight": number(p.weight, 3),
+              "converged": "yes" if p.converged else "no", "iterations": str(p.iterations),
+              "seconds": number(p.seconds, 2), "reason": p.reason or "—",
+              "figure": f"pair-{p.i}-{p.j}" in pair_anchor, "anchor": pair_anchor.get(f"pair-{p.i}-{p.j}", "")}
+             for p in sorted(result.pairs, key=lambda p: (p.i, p.j))]
+    has_truth = any(s.truth_x_m is not None for s in result.scans)
+    placed = []
+    for s in result.scans:
+        if not s.placed:
+            continue
+        error = None
+        if has_truth and None not in (s.truth_x_m, s.truth_y_m, s.x_m, s.y_m):
+            error = math.hypot(s.x_m - s.truth_x_m, s.y_m - s.truth_y_m)
+        placed.append({"id": s.id, "file": s.file, "x": signed(s.x_m), "y": signed(s.y_m),
+                       "sx": number(s.sigma_x_m), "sy": number(s.sigma_y_m),
+                       "heading": number(compass_deg_from_yaw(s.yaw_rad), 1), "depth": number(s.depth_m, 2),
+                       "error": number(error)})
+    unplaced = [{"id": s.id, "file": s.file, "reason": s.reason or "not reached"} for s in result.scans if not s.placed]
+    provenance = result.provenance
+    plugins = [] if provenance is None else [
+        {"stage": p.stage, "plugin": p.plugin, "distribution": p.distribution, "version": p.version,
+         "params": json.dumps(p.params, sort_keys=True, default=str) if p.params else "defaults"}
+        for p in provenance.plugins]
+    seeds = [] if provenance is None else sorted(provenance.seeds.items())
+    reference = result.reference_scan
+    status_text = {"ok": "built", "failed": "failed"}.get(result.status, result.status)
+    total = sum(result.timings_s.values())
+    return {
+        "version": __version__,
+        "build_time": format_time(build_time_from_env()),
+        "result": result,
+        "record": build.record,
+        "status_text": status_text,
+        "ids": ids,
+        "sections": sections,
+        "location": location_text(build.record),
+        "sonar": sonar_text(build.record),
+        "placed_count": sum(1 for s in result.scans if s.placed),
+        "reference_label": _label(labels, reference) if reference is not None and reference >= 0 else "",
+        "dimension_stats": _stat_rows(result.dimension_stats),
+        "total_time": f"{total:.2f} s over {len(result.timings_s)} stages" if result.timings_s else "",
+        "figures": figures,
+        "views": [views[id(f)] for f in model.views],
+        "model_note": model.note,
+        "model_missing": model.missing,
+        "dimensions": _dimension_rows(result),
+        "pairs": pairs,
+        "pair_figures": [views[id(f)] for f in drawn["pairs"]],
+        "pairs_not_drawn": drawn["pairs_not_drawn"],
+        "fan_figures": [views[id(f)] for f in drawn["fans"]],
+        "fans_not_drawn": drawn["fans_not_drawn"],
+        "placed": placed,
+        "unplaced": unplaced,
+        "has_truth": has_truth,
+        "plugins": plugins,
+        "seeds": seeds,
+        "timings": [{"stage": k, "seconds": f"{v:.3f}"} for k, v in result.timings_s.items()],
+        "downloads": downloads,
+    }
+
+
+DOWNLOADS = (
+    ("grid", "Evidence grids", "log-odds of every depth slice with origin, cell size and depth (NumPy .npz)"),
+    ("mesh-ply", "3D model (PLY)", "triangle mesh, map frame in metres, z up"),
+    ("mesh-gltf", "3D model (glTF binary)", "self-contained .glb coloured by depth, for any glTF viewer"),
+    ("result", "Result (JSON)", "the site's result.json: poses, pairs, dimensions, provenance, timings"),
+    ("dimensions-csv", "Dimension table (CSV)", "map vs reference for every measured dimension"),
+    ("pairs-csv", "Pair table (CSV)", "every pair match"),
+    ("scans-csv", "Scan table (CSV)", "every scan, placed or not"),
+)
+
+
+def _downloads(artifacts: dict[str, str], site_dir: Path) -> list[dict[str, str]]:
+    out = []
+    for key, title, description in DOWNLOADS:
+        if key in artifacts:
+            out.append({"file": artifacts[key], "title": title, "description": description,
+                        "size": human_size((site_dir / artifacts[key]).stat().st_size)})
+    for key in sorted(k for k in artifacts if k.startswith("grid-png-")):
+        k = int(key.rsplit("-", 1)[1])
+        out.append({"file": artifacts[key], "title": f"Grid image, slice {k + 1}",
+                    "description": "one pixel per cell, north up: black occupied, white free, grey unknown",
+                    "size": human_size((site_dir / artifacts[key]).stat().st_size)})
+    return out
+
+
+def render_site(build: SiteBuild, site_dir: Path, *, config: ReportConfig | None = None) -> dict[str, str]:
+    """Write a site's report into ``site_dir``.
+
+    Parameters
+    ----------
+    build : SiteBuild
+        A successful or failed build; missing parts are reported as missing.
+    site_dir : Path
+        An existing folder (the caller publishes it atomically).
+    config : ReportConfig, keyword-only, optional
+
+    Returns
+    -------
+    dict
+        Artifact name → path relative to ``site_dir``: ``page`` (``index.html``), ``result``
+        (``result.json``, written here with these artifacts), ``grid``, ``grid-png-<k>``, ``map``,
+        ``thumbnail``, ``mesh-ply``, ``mesh-gltf``, ``render-<view>``, the CSV tables and the figures.
+    """
+    config = config or ReportConfig()
+    site_dir = Path(site_dir)
+    if not site_dir.is_dir():
+        raise CisternError(f"{site_dir}: the site folder does not exist")
+    labels = station_labels(build)
+    artifacts: dict[str, str] = {}
+    artifacts.update(write_arrays(build, site_dir))
+    drawn = draw_figures(build, labels, site_dir, config)
+    for key in ("map", "slices", "probes"):
+        if key in drawn:
+            artifacts[key] = drawn[key].file
+    if "thumbnail" in drawn:
+        artifacts["thumbnail"] = drawn["thumbnail"]
+    for f in drawn["pairs"] + drawn["fans"]:
+        artifacts[Path(f.file).stem] = f.file
+    model = build_model(build, site_dir, config)
+    artifacts.update(model.files)
+    artifacts.update(write_tables(build.result, labels, site_dir))
+    artifacts["result"] = "result.json"
+    artifacts["page"] = "index.html"
+    artifacts = dict(sorted(artifacts.items()))
+    result = build.result.model_copy(update={"artifacts": artifacts})
+    (site_dir / "result.json").write_text(result.model_dump_json(indent=2) + "\n", encoding="utf-8")
+    context = page_context(SiteBuild(result=result, record=build.record, raw_scans=build.raw_scans,
+                                     range_scans=build.range_scans, matches=build.matches, poses=build.poses,
+                                     map_result=build.map_result, table=build.table),
+                           labels, drawn, model, _downloads(artifacts, site_dir), site_dir)
+    (site_dir / "index.html").write_text(render_site_page(**context), encoding="utf-8")
+    return artifacts
+
+
+IMG_SRC = re.compile(r'<img[^>]+src="([^"]+)"')
+
+
+def page_bytes(page: Path) -> int:
+    """Size of an HTML page plus every local image it shows."""
+    html = page.read_text(encoding="utf-8")
+    sources = sorted(set(IMG_SRC.findall(html)))
+    return page.stat().st_size + sum((page.parent / s).stat().st_size for s in sources if "://" not in s)

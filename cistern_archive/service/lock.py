@@ -1,0 +1,144 @@
+"""A lock that lets one rebuild at a time write an output folder.
+
+The lock file ``OUT/.rebuild.lock`` holds the owner's pid, host, process start time and command line.
+It is taken with ``flock`` (released by the kernel when the owner dies, however it dies) and checked
+against the recorded pid: a lock file whose owner is no longer running is stale and is taken over.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import socket
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import psutil
+
+from cistern_archive.errors import CisternError
+
+LOCK_NAME = ".rebuild.lock"
+
+
+class RebuildLocked(CisternError):
+    """Another rebuild is writing the same output folder."""
+
+
+def _process_start(pid: int) -> float | None:
+    try:
+        return psutil.Process(pid).create_time()
+    except (psutil.NoSuchProcess, psutil.AccessDenied):
+        return None
+
+
+def owner_alive(info: dict[str, Any]) -> bool:
+    """Whether the process recorded in a lock file is still running (and is the same process)."""
+    pid = info.get("pid")
+    if not isinstance(pid, int) or info.get("host") != socket.gethostname():
+        return isinstance(pid, int)  # another host's lock: assume alive, it cannot be checked from here
+    started = _process_start(pid)
+    if started is None:
+        return False
+    recorded = info.get("process_start")
+    return recorded is None or abs(float(recorded) - started) < 1.0
+
+
+class RebuildLock:
+    """Context manager holding ``OUT/.rebuild.lock``.
+
+    Parameters
+    ----------
+    out : Path
+        The output folder (created when missing).
+
+    Attributes
+    ----------
+    stale : dict or None
+        After entering: the record of a stale lock that was taken over (its owner had died).
+
+    Raises
+    ------
+    RebuildLocked
+        On entry, when a live process holds the lock; the message names it.
+    """
+
+    def __init__(self, out: Path):
+        self.path = Path(out) / LOCK_NAME
+        self.stale: dict[str, Any] | None = None
+        self._fd: int | None = None
+
+    def __enter__(self) -> "RebuildLock":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        for _ in range(10):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                info = _read(fd)
+                os.close(fd)
+                raise RebuildLocked(self._refusal(info)) from None
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)  # the file was replaced between open and flock; try the new one
+        else:  # pragma: no cover - needs ten consecutive races
+            raise RebuildLocked(f"{self.path}: could not take the lock (it keeps being replaced)")
+        previous = _read(fd)
+        if previous:
+            if owner_alive(previous):
+                os.close(fd)
+                raise RebuildLocked(self._refusal(previous))
+            self.stale = previous
+        self._fd = fd
+        _write(fd, {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "process_start": _process_start(os.getpid()),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "command": " ".join(sys.argv),
+        })
+        return self
+
+    def _refusal(self, info: dict[str, Any]) -> str:
+        who = f"pid {info.get('pid', '?')} on {info.get('host', '?')}, started {info.get('started', '?')}"
+        return (f"another rebuild is already writing {self.path.parent} ({who}); wait for it to finish. "
+                f"Lock file: {self.path}")
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fd is None:
+            return
+        try:
+            self.path.unlink(missing_ok=True)
+        finally:
+            os.close(self._fd)
+            self._fd = None
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        on_disk = path.stat()
+    except FileNotFoundError:
+        return False
+    mine = os.fstat(fd)
+    return (mine.st_dev, mine.st_ino) == (on_disk.st_dev, on_disk.st_ino)
+
+
+def _read(fd: int) -> dict[str, Any]:
+    os.lseek(fd, 0, os.SEEK_SET)
+    raw = b""
+    while chunk := os.read(fd, 65536):
+        raw += chunk
+    try:
+        data = json.loads(raw.decode("utf-8")) if raw.strip() else {}
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        data = {"unreadable": raw[:200].decode("utf-8", "replace")}
+    return data if isinstance(data, dict) else {}
+
+
+def _write(fd: int, info: dict[str, Any]) -> None:
+    os.ftruncate(fd, 0)
+    os.lseek(fd, 0, os.SEEK_SET)
+    os.write(fd, (json.dumps(info, sort_keys=True) + "\n").encode("utf-8"))
+    os.fsync(fd)

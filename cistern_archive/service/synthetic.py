@@ -1,0 +1,67 @@
+"""A generated catalog of simulated rectangular cisterns, for the service's tests and benchmarks.
+
+Each site is a rectangle of random size with two to four stations along its long axis and its true
+width and length as references; the specs are written to ``ROOT/specs/`` and simulated with
+:func:`cistern_archive.sonar.simulator.simulate_site` into ``ROOT/data/`` and ``ROOT/sites/``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+
+def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None = None) -> dict:
+    """The simulator spec (as a mapping) of site ``index``."""
+    length = float(np.round(rng.uniform(5.0, 9.0), 2))
+    width = float(np.round(rng.uniform(2.5, 4.5), 2))
+    n = int(stations if stations is not None else rng.integers(2, 5))
+    spacing = min(1.6, 0.7 * length / max(n - 1, 1))
+    xs = length / 2 + (np.arange(n) - (n - 1) / 2) * spacing
+    station_list = []
+    for k, x in enumerate(xs):
+        station_list.append({
+            "name": f"s{k + 1}",
+            "x_m": float(np.round(x, 2)),
+            "y_m": float(np.round(width / 2 + rng.uniform(-0.3, 0.3), 2)),
+            "yaw_deg": float(np.round(rng.uniform(-180.0, 180.0), 1)),
+            "depth_m": float(np.round(rng.uniform(1.0, 1.4), 2)),
+        })
+    inside = [float(np.round(length / 2, 2)), float(np.round(width / 2, 2))]  # site frame
+    return {
+        "schema_version": 1,
+        "id": f"cistern-{index:03d}",
+        "name": f"Generated cistern {index:03d}",
+        "description": f"Simulated rectangular cistern {length} m x {width} m with {n} stations.",
+        "location": {"place": "simulated", "redact": True},
+        "seed": int(rng.integers(0, 2**31)),
+        "site": {"water_depth_m": 2.0, "levels": [{"depth_m": 0.0, "walls": {"rectangle": [0.0, 0.0, length, width]}}]},
+        "sonar": {"range_m": 8.0, "bins": 200, "step_deg": 0.9},
+        "stations": station_list,
+        "references": [
+            {"name": "width", "kind": "truth", "value_m": width,
+             "measure": {"frame": "s1", "inside": inside, "direction_deg": 90.0, "repeats": 5, "spacing_m": 0.3}},
+            {"name": "length", "kind": "truth", "value_m": length,
+             "measure": {"frame": "s1", "inside": inside, "direction_deg": 0.0, "repeats": 5, "spacing_m": 0.2}},
+        ],
+    }
+
+
+def write_synthetic_catalog(root: Path, n_sites: int, *, seed: int = 0, stations: int | None = None) -> list[Path]:
+    """Write ``n_sites`` simulated sites under the catalog root ``root``; return their record paths."""
+    from cistern_archive.sonar.simulation_output import write_site
+    from cistern_archive.sonar.simulator import simulate_site
+    from cistern_archive.sonar.simulator_spec import load_spec
+
+    root = Path(root)
+    (root / "specs").mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    records = []
+    for index in range(n_sites):
+        spec_path = root / "specs" / f"cistern-{index:03d}.yaml"
+        spec_path.write_text(yaml.safe_dump(synthetic_spec(index, rng, stations=stations), sort_keys=False),
+                             encoding="utf-8")
+        records.append(write_site(simulate_site(load_spec(spec_path)), root, spec_path=spec_path, record_dir="sites"))
+    return records

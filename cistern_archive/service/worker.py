@@ -1,0 +1,105 @@
+"""What a worker process does for one site: build, write, render, publish.
+
+:func:`run_site` runs in a local worker process or on a Dask worker. It builds into a temporary
+sibling of the site folder and publishes it with an atomic swap; any error (a full disk, a renderer
+crash) discards the temporary folder and leaves the previously published report in place. A stage
+failure is not an error here: the pipeline returns a failed result, whose report is published.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import socket
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cistern_archive.archive.digest import file_sha256
+from cistern_archive.archive.index import utc_now
+from cistern_archive.service.publish import discard, publish, staging_dir
+from cistern_archive.service.summary import SiteOutcome
+
+BUILD_INFO = "build.json"
+
+
+@dataclass(frozen=True)
+class SiteTask:
+    """Everything a worker needs to build one site (plain values, cheap to pickle)."""
+
+    site_id: str
+    record_path: str
+    catalog_root: str
+    out: str
+    build_key: str
+    key_material: dict[str, Any]
+    run_id: str
+    report_config: dict[str, Any] | None = None
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, in MiB."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+
+
+def worker_name() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def manifest(folder: Path) -> dict[str, str]:
+    """``{relative path: sha256}`` of every file under ``folder``, sorted."""
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    return {p.relative_to(folder).as_posix(): file_sha256(p)[0] for p in files}
+
+
+def run_site(task: SiteTask) -> SiteOutcome:
+    """Build one site and publish its report atomically; never raises for a failure of the site.
+
+    Returns
+    -------
+    SiteOutcome
+        ``ok`` or ``failed``; on failure ``error`` says where, and the previous report (if any) is kept
+        unless the failure was a pipeline stage (whose failure report is published).
+    """
+    from cistern_archive.catalog.loader import load_record
+    from cistern_archive.pipeline.runner import build_site, write_json_atomic, write_site_result
+    from cistern_archive.report.config import ReportConfig
+    from cistern_archive.report.site import render_site
+
+    start = time.perf_counter()
+    timings: dict[str, float] = {}
+    staged: Path | None = None
+    out = Path(task.out)
+    try:
+        staged = staging_dir(out, task.site_id)
+        loaded = load_record(Path(task.record_path), Path(task.catalog_root))
+        build = build_site(loaded)
+        timings.update(build.result.timings_s)
+        tick = time.perf_counter()
+        write_site_result(build, staged)
+        render_site(build, staged, config=ReportConfig(**(task.report_config or {})))
+        timings["report"] = round(time.perf_counter() - tick, 6)
+        files = manifest(staged)
+        write_json_atomic({"site_id": task.site_id, "build_key": task.build_key, "status": build.result.status,
+                           "run_id": task.run_id, "built_at": utc_now(), "files": files,
+                           "key_material": task.key_material},
+                          staged / BUILD_INFO)
+        tick = time.perf_counter()
+        publish(staged, out / task.site_id)
+        staged = None
+        timings["publish"] = round(time.perf_counter() - tick, 6)
+        status, error = build.result.status, build.result.error
+        detail = build.result.failure.traceback if build.result.failure else ""
+    except Exception as exc:
+        status, files = "failed", {}
+        error = f"{type(exc).__name__}: {exc}"
+        detail = traceback.format_exc(limit=12)
+    finally:
+        if staged is not None:
+            discard(staged)
+    timings["wall"] = round(time.perf_counter() - start, 6)
+    return SiteOutcome(id=task.site_id, status=status, error=error, build_key=task.build_key, timings_s=timings,
+                       report=f"{task.site_id}/index.html" if files else None, worker=worker_name(),
+                       peak_rss_mb=peak_rss_mb(), attempts=1, artifacts=files, detail=detail)

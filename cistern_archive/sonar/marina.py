@@ -1,0 +1,185 @@
+"""Loaders of the Girona "abandoned marina" navigation logs (Ribas et al. 2008 dataset).
+
+Files (see ``../shared/data/README.md``):
+
+* ``_*_DGPS.log`` / ``GTData.csv``: log time (Unix s), latitude ``ddmm.mmmm``, longitude ``dddmm.mmmm``,
+  status, altitude, geoid altitude, true course, magnetic course, speed (kn, km/h).
+* ``dgps_local_EN_m.csv``: log time, east, north (m, origin at the first fix), status.
+* ``_*_DVL.log``: log time, device date (wrong), water and bottom velocities (cm/s) …; only the columns up
+  to heading/pitch/roll are trusted. ``dvlData.csv``: log time, bottom velocity x/y/z (m/s), three
+  ranges, heading, pitch, roll (radians).
+* ``_*_MTi.log``: log time, roll, pitch, yaw (degrees; yaw is a compass heading in ±180, clockwise from
+  north), three rates, three accelerations.
+* ``keyFrameTimeStamps.csv``: key frame number, begin and end time of its sonar revolution.
+
+Every loader returns a :class:`NavTable` of named float64 columns sorted by time, and raises
+:class:`~cistern_archive.errors.ReaderError` naming the file and line of a malformed row.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cistern_archive.errors import ReaderError
+
+
+@dataclass(frozen=True)
+class NavTable:
+    """Columns of a navigation log, all of equal length, rows sorted by ``time``."""
+
+    columns: dict[str, np.ndarray]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    def __len__(self) -> int:
+        return len(next(iter(self.columns.values()))) if self.columns else 0
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.columns["time"]
+
+    def between(self, start: float, end: float) -> "NavTable":
+        """Rows with ``start <= time <= end``."""
+        mask = (self.time >= start) & (self.time <= end)
+        return NavTable({k: v[mask] for k, v in self.columns.items()})
+
+    def interp(self, name: str, t: float | np.ndarray) -> float | np.ndarray:
+        """Linear interpolation of a column at time(s) ``t`` (clamped at the ends)."""
+        return np.interp(t, self.time, self.columns[name])
+
+
+def _rows(path: Path, sep: str | None, skip_header: bool) -> list[tuple[int, list[str]]]:
+    try:
+        text = path.read_text(encoding="latin-1")
+    except OSError as exc:
+        raise ReaderError(str(path), f"cannot read: {exc.strerror or exc}") from exc
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped[0] in "%#":
+            continue
+        if skip_header and not rows and not (stripped[0].isdigit() or stripped[0] in "+-."):
+            continue
+        fields = [f for f in (stripped.split(sep) if sep else stripped.split()) if f.strip() != ""]
+        rows.append((lineno, fields))
+    return rows
+
+
+def load_table(path: str | os.PathLike, names: list[str], *, sep: str | None = None,
+               columns: list[int] | None = None, skip_header: bool = True) -> NavTable:
+    """Load a numeric table.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    names : list of str
+        Names of the columns kept (the first must be ``"time"``).
+    sep : str, optional
+        Field separator (whitespace when None).
+    columns : list of int, optional
+        Indices of the kept columns (default: the first ``len(names)``).
+    skip_header : bool
+        Skip a leading non-numeric line (a CSV header).
+
+    Raises
+    ------
+    ReaderError
+        A row has too few fields, a non-numeric or non-finite value, or the file has no rows.
+    """
+    path = Path(path)
+    cols = columns if columns is not None else list(range(len(names)))
+    values = []
+    for lineno, fields in _rows(path, sep, skip_header):
+        if len(fields) <= max(cols):
+            raise ReaderError(str(path), f"line {lineno}: {len(fields)} fields, need {max(cols) + 1}")
+        try:
+            row = [float(fields[c]) for c in cols]
+        except ValueError as exc:
+            raise ReaderError(str(path), f"line {lineno}: {exc}") from exc
+        if not all(math.isfinite(v) for v in row):
+            raise ReaderError(str(path), f"line {lineno}: NaN or infinite value")
+        values.append(row)
+    if not values:
+        raise ReaderError(str(path), "no data rows")
+    arr = np.array(values, dtype=np.float64)
+    order = np.argsort(arr[:, 0], kind="stable")
+    return NavTable({name: arr[order, i] for i, name in enumerate(names)})
+
+
+def ddmm_to_deg(value: np.ndarray) -> np.ndarray:
+    """Convert NMEA ``(d)ddmm.mmmm`` to decimal degrees."""
+    value = np.asarray(value, dtype=np.float64)
+    deg = np.trunc(value / 100.0)
+    return deg + (value - deg * 100.0) / 60.0
+
+
+_DGPS = ["time", "lat_ddmm", "lon_ddmm", "status", "altitude_m", "geoid_altitude_m", "true_course_deg",
+         "magnetic_course_deg", "speed_kn", "speed_kmh"]
+
+
+def load_dgps(path: str | os.PathLike) -> NavTable:
+    """DGPS fixes from ``_*_DGPS.log`` or ``GTData.csv``, with added ``lat_deg`` and ``lon_deg``."""
+    path = Path(path)
+    table = load_table(path, _DGPS, sep="," if path.suffix.lower() == ".csv" else None)
+    cols = dict(table.columns)
+    cols["lat_deg"] = ddmm_to_deg(cols["lat_ddmm"])
+    cols["lon_deg"] = ddmm_to_deg(cols["lon_ddmm"])
+    return NavTable(cols)
+
+
+def load_gt(path: str | os.PathLike) -> NavTable:
+    """The ground-truth track ``GTData.csv`` (the DGPS fixes; same columns as :func:`load_dgps`)."""
+    return load_dgps(path)
+
+
+def load_dgps_local(path: str | os.PathLike) -> NavTable:
+    """``dgps_local_EN_m.csv``: time, east_m, north_m, status."""
+    return load_table(path, ["time", "east_m", "north_m", "status"], sep=",")
+
+
+def load_dvl(path: str | os.PathLike) -> NavTable:
+    """DVL data: ``dvlData.csv`` (m/s, radians) or the raw ``_*_DVL.log`` (converted to m/s, radians).
+
+    Columns: time, bottom_vx, bottom_vy, bottom_vz (m/s), range1..3 (m), heading, pitch, roll (rad).
+    """
+    path = Path(path)
+    names = ["time", "bottom_vx", "bottom_vy", "bottom_vz", "range1", "range2", "range3", "heading_rad",
+             "pitch_rad", "roll_rad"]
+    if path.suffix.lower() == ".csv":
+        return load_table(path, names, sep=",")
+    raw = load_table(path, names, columns=[0, 11, 12, 13, 15, 16, 17, 22, 23, 24])
+    cols = dict(raw.columns)
+    for k in ("bottom_vx", "bottom_vy", "bottom_vz"):
+        cols[k] = cols[k] / 100.0
+    for k in ("heading_rad", "pitch_rad", "roll_rad"):
+        cols[k] = np.radians(cols[k])
+    return NavTable(cols)
+
+
+def load_mti(path: str | os.PathLike) -> NavTable:
+    """``_*_MTi.log``: time, roll_deg, pitch_deg, yaw_deg (compass, ±180), rates (rad/s), accelerations."""
+    names = ["time", "roll_deg", "pitch_deg", "yaw_deg", "rate_x", "rate_y", "rate_z", "acc_x", "acc_y", "acc_z"]
+    return load_table(path, names)
+
+
+def load_keyframe_times(path: str | os.PathLike) -> dict[int, tuple[float, float]]:
+    """``keyFrameTimeStamps.csv`` as ``{key frame: (begin, end)}``."""
+    table = load_table(path, ["time", "begin", "end"], sep=",")
+    return {int(k): (float(b), float(e)) for k, b, e in zip(table["time"], table["begin"], table["end"])}
+
+
+def mean_heading_deg(table: NavTable, start: float, end: float, column: str = "yaw_deg") -> float | None:
+    """Circular mean of a compass-heading column over [start, end] (nearest sample when none inside)."""
+    if len(table) == 0:
+        return None
+    part = table.between(start, end)
+    values = part[column] if len(part) else np.array([table[column][np.argmin(np.abs(table.time - start))]])
+    rad = np.radians(values)
+    return math.degrees(math.atan2(np.sin(rad).mean(), np.cos(rad).mean())) % 360.0

@@ -1,0 +1,378 @@
+"""A physically plausible mechanically scanned imaging sonar in simulated sites with known truth.
+
+The model of one stationary 360° scan (all levels in dB re an arbitrary source level):
+
+* **Beam**: the head steps ``step_deg`` clockwise (seen from above), so bearings in the sonar frame
+  (counter-clockwise, see :mod:`cistern_archive.sonar.scan`) decrease. Each beam is ``sub_rays`` rays
+  across a Gaussian two-way pattern of full width at half maximum ``beam_width_deg``; each ray is cast to
+  the walls of the depth slice the sonar is in (:mod:`cistern_archive.sonar.geometry`).
+* **Echo** of a ray hitting a wall at range ``r`` with incidence cosine ``c``:
+  ``BS(c) - n_s log10 r - 2 a r`` with backscatter ``BS = 10 log10(c^2 + roughness)`` (Lambert-like), two-way
+  spreading ``n_s`` (40) and absorption ``a`` dB/m one way. The compressed (matched-filter) pulse puts the
+  echo in range as a Gaussian of standard deviation ``pulse_length_m / 2`` centred on ``r``; its energy is
+  integrated over each bin (**bin quantisation**).
+* **Time-varying gain**: ``+ n_t log10 max(r, r_min) + 2 a_t r``; ``n_t`` and ``a_t`` need not equal
+  ``n_s`` and ``a`` (by default far walls come back a few dB weaker, as on real heads).
+* **Receiver noise** is added before the TVG, so it grows with range after it; **floor and surface
+  reverberation** enters through the vertical lobe beyond the slant range where the lobe's edge meets the
+  floor or the surface.
+* **Speckle**: every bin's echo and reverberation power is multiplied by a unit-mean gamma variate with
+  ``speckle_looks`` degrees of freedom; noise is exponential.
+* **Multipath ghosts**: on a fraction of beams a copy of the direct echo arrives ``multipath_extra_m``
+  later with a level offset drawn from ``multipath_level_db`` (it may be stronger than the direct echo).
+* **The vehicle's own echo**: transducer ring-down at zero range on every beam, and the vehicle's body in
+  a sector of bearings (behind the head by default) a few decimetres away.
+* **AD conversion** as on a Tritech head: ``255 (L - ADLow) / ADSpan`` clipped to 0..255 and truncated
+  to 8 bits, so the water between walls is mostly exact zeros.
+* **Random spikes**: isolated one-bin interference spikes.
+* **Navigation**: the compass reads the true yaw plus a bias and Gaussian noise; the depth sensor the
+  true depth plus Gaussian noise. The vehicle is stationary during a scan.
+
+Everything random is drawn from a ``numpy.random.Generator`` passed in; :func:`simulate_site` derives one
+per station from the spec's seed, so a spec always produces the same bytes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtr
+
+from cistern_archive.sonar.geometry import (
+    Slice,
+    contains,
+    interpolate_slice,
+    overlap_fraction,
+    ray_cast,
+)
+from cistern_archive.sonar.scan import Scan, wrap_angle
+from cistern_archive.sonar.simulator_spec import (
+    EffectsSpec,
+    RouteSpec,
+    SimulationSpec,
+    SonarSpec,
+)
+
+FULL_SCALE = 255
+
+
+@dataclass(frozen=True)
+class TruePose:
+    """Where a scan really was: map-frame position (m), yaw (rad, CCW from east), depth (m)."""
+
+    station: str
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    depth_m: float
+
+
+@dataclass(frozen=True, eq=False)
+class SimulatedScan:
+    """A simulated scan with its truth.
+
+    Attributes
+    ----------
+    scan : Scan
+        What the sonar, compass and depth sensor report.
+    pose : TruePose
+        Where it really was.
+    truth_ranges_m : ndarray, shape (A,)
+        Range along each beam's axis to the true wall (``inf`` beyond the range setting or no wall).
+    """
+
+    scan: Scan
+    pose: TruePose
+    truth_ranges_m: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SimulatedSite:
+    """All scans of a spec, in station order."""
+
+    spec: SimulationSpec
+    scans: list[SimulatedScan]
+
+
+def station_rng(seed: int, purpose: int, index: int) -> np.random.Generator:
+    """The generator for one purpose (0 route planning, 1 scans, 2 references) and index."""
+    return np.random.default_rng([int(seed), int(purpose), int(index)])
+
+
+def _db_to_power(db: np.ndarray | float) -> np.ndarray | float:
+    return np.power(10.0, np.asarray(db) / 10.0)
+
+
+def beam_bearings(sonar: SonarSpec) -> np.ndarray:
+    """Bearings of one clockwise revolution in the sonar frame (CCW from forward), acquisition order."""
+    n_beams = int(round(360.0 / sonar.step_deg))
+    return np.asarray(wrap_angle(-np.arange(n_beams) * math.radians(360.0 / n_beams)))
+
+
+def _pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-ray angular offsets (rad) and their two-way Gaussian pattern weights (summing to 1)."""
+    width = math.radians(sonar.beam_width_deg)
+    if sonar.sub_rays == 1:
+        return np.zeros(1), np.ones(1)
+    offsets = np.linspace(-1.2 * width, 1.2 * width, sonar.sub_rays)
+    weights = np.exp(-4.0 * math.log(2.0) * (offsets / width) ** 2)
+    return offsets, weights / weights.sum()
+
+
+def _bin_fractions(ranges: np.ndarray, edges: np.ndarray, sigma: float) -> np.ndarray:
+    """Fraction of a Gaussian pulse centred on each range falling in each bin, shape ranges.shape + (B,)."""
+    cdf = ndtr((edges - ranges[..., None]) / sigma)
+    return np.diff(cdf, axis=-1)
+
+
+def _echo_profiles(
+    ranges: np.ndarray, cosines: np.ndarray, weights: np.ndarray, sonar: SonarSpec, effects: EffectsSpec,
+    edges: np.ndarray,
+) -> np.ndarray:
+    """Pre-TVG echo power per beam and bin from sub-rays, shape (A, B)."""
+    hit = np.isfinite(ranges) & (ranges < edges[-1] + 3 * sonar.pulse_length_m)
+    r = np.where(hit, ranges, edges[-1] * 10.0)
+    backscatter = cosines**2 + effects.wall_roughness
+    loss_db = sonar.spreading_exponent * np.log10(np.maximum(r, 1e-3)) + 2.0 * sonar.absorption_db_per_m * r
+    power = np.where(hit, weights[None, :] * backscatter * _db_to_power(-loss_db), 0.0)
+    fractions = _bin_fractions(r, edges, sonar.pulse_length_m / 2.0)
+    return np.einsum("as,asb->ab", power, fractions)
+
+
+def _tvg_gain(centres: np.ndarray, sonar: SonarSpec) -> np.ndarray:
+    r = np.maximum(centres, sonar.tvg_min_range_m)
+    return _db_to_power(sonar.tvg_exponent * np.log10(r) + 2.0 * sonar.tvg_absorption_db_per_m * centres)
+
+
+def _ghosts(
+    axial_ranges: np.ndarray, axial_cos: np.ndarray, sonar: SonarSpec, effects: EffectsSpec, edges: np.ndarray,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Pre-TVG power of multipath ghosts, shape (A, B)."""
+    n_beams = axial_ranges.size
+    chosen = (rng.random(n_beams) < effects.multipath_fraction) & np.isfinite(axial_ranges)
+    extra = rng.uniform(*effects.multipath_extra_m, size=n_beams)
+    offset_db = rng.uniform(*effects.multipath_level_db, size=n_beams)
+    ghost_r = np.where(chosen, axial_ranges + extra, edges[-1] * 10.0)
+    backscatter = axial_cos**2 + effects.wall_roughness
+    loss_db = (sonar.spreading_exponent * np.log10(np.maximum(ghost_r, 1e-3))
+               + 2.0 * sonar.absorption_db_per_m * ghost_r)
+    power = np.where(chosen, backscatter * _db_to_power(offset_db - loss_db), 0.0)
+    return power[:, None] * _bin_fractions(ghost_r, edges, sonar.pulse_length_m / 2.0)
+
+
+def _self_echo(bearings: np.ndarray, centres: np.ndarray, effects: EffectsSpec, pulse_m: float) -> np.ndarray:
+    """Post-TVG power of the ring-down and the vehicle's body, shape (A, B)."""
+    ring = np.zeros(centres.shape)
+    if effects.self_echo_range_m > 0:
+        ring = _db_to_power(effects.self_echo_db) * np.exp(-centres / effects.self_echo_range_m)
+    out = np.broadcast_to(ring, (bearings.size, centres.size)).copy()
+    centre, width = (math.radians(v) for v in effects.vehicle_sector_deg)
+    delta = np.abs(np.asarray(wrap_angle(bearings - centre)))
+    in_sector = delta <= width / 2
+    if in_sector.any() and width > 0:
+        lo, hi = effects.vehicle_echo_range_m
+        body_r = lo + (hi - lo) * (delta[in_sector] / (width / 2)) ** 2
+        sigma = max(pulse_m, 0.02)
+        bump = np.exp(-0.5 * ((centres[None, :] - body_r[:, None]) / sigma) ** 2)
+        out[in_sector] += _db_to_power(effects.vehicle_echo_db) * bump
+    return out
+
+
+def _reverberation(
+    centres: np.ndarray, wall_ranges: np.ndarray, depth_m: float, water_depth_m: float | None,
+    sonar: SonarSpec, effects: EffectsSpec,
+) -> np.ndarray:
+    """Post-TVG floor/surface reverberation seen through the vertical lobe, up to each beam's wall."""
+    half = math.radians(sonar.vertical_beam_width_deg / 2.0)
+    heights = [depth_m] if depth_m > 0 else []
+    if water_depth_m is not None and water_depth_m > depth_m:
+        heights.append(water_depth_m - depth_m)
+    if not heights:
+        return np.zeros((wall_ranges.size, centres.size))
+    onset = min(heights) / math.sin(half)
+    ramp = np.clip((centres - onset) / max(onset, 0.1), 0.0, 1.0)
+    level = _db_to_power(effects.floor_db) * ramp
+    before_wall = centres[None, :] < np.where(np.isfinite(wall_ranges), wall_ranges, np.inf)[:, None]
+    return level[None, :] * before_wall
+
+
+def simulate_scan(
+    rings: Slice,
+    pose: TruePose,
+    sonar: SonarSpec,
+    effects: EffectsSpec,
+    rng: np.random.Generator,
+    *,
+    timestamp: float = float("nan"),
+    water_depth_m: float | None = None,
+) -> SimulatedScan:
+    """Simulate one stationary 360° scan (model in the module docstring).
+
+    Parameters
+    ----------
+    rings : list of (K, 2) arrays
+        The walls at the sonar's depth.
+    pose : TruePose
+        The true pose of the sonar head.
+    sonar, effects : SonarSpec, EffectsSpec
+    rng : numpy.random.Generator
+        Source of every random draw.
+    timestamp : float
+        Start of the sweep (Unix seconds).
+    water_depth_m : float, optional
+        Floor depth, for floor reverberation.
+
+    Returns
+    -------
+    SimulatedScan
+    """
+    bearings = beam_bearings(sonar)
+    bin_size = sonar.range_m / sonar.bins
+    edges = np.arange(sonar.bins + 1) * bin_size
+    centres = edges[:-1] + bin_size / 2
+    offsets, weights = _pattern(sonar)
+    origin = np.array([pose.x_m, pose.y_m])
+    beam_angles = pose.yaw_rad + bearings
+    ranges, cosines = ray_cast(origin, (beam_angles[:, None] + offsets[None, :]).ravel(), rings)
+    ranges = ranges.reshape(bearings.size, offsets.size)
+    cosines = cosines.reshape(bearings.size, offsets.size)
+    axial_r, axial_c = ray_cast(origin, beam_angles, rings)
+
+    echo = _echo_profiles(ranges, cosines, weights, sonar, effects, edges)
+    echo += _ghosts(axial_r, axial_c, sonar, effects, edges, rng)
+    tvg = _tvg_gain(centres, sonar)
+    signal = echo * tvg[None, :]
+    signal += _self_echo(bearings, centres, effects, sonar.pulse_length_m)
+    signal += _reverberation(centres, axial_r, pose.depth_m, water_depth_m, sonar, effects)
+    if effects.speckle_looks > 0:
+        signal *= rng.gamma(effects.speckle_looks, 1.0 / effects.speckle_looks, size=signal.shape)
+    noise = _db_to_power(effects.noise_db) * rng.exponential(1.0, size=signal.shape) * tvg[None, :]
+    level_db = 10.0 * np.log10(signal + noise + 1e-30)
+    counts = np.floor(FULL_SCALE * (level_db - sonar.ad_low_db) / sonar.ad_span_db)
+    intensities = np.clip(counts, 0, FULL_SCALE).astype(np.uint8)
+    _add_spikes(intensities, effects.spike_rate, rng)
+
+    measured_yaw = pose.yaw_rad + math.radians(
+        effects.compass_bias_deg + effects.compass_sigma_deg * rng.standard_normal()
+    )
+    measured_depth = pose.depth_m + effects.depth_sigma_m * rng.standard_normal()
+    scan = Scan(
+        bearings_rad=bearings,
+        intensities=intensities,
+        full_scale=FULL_SCALE,
+        bin_size_m=bin_size,
+        start_range_m=0.0,
+        yaw_rad=float(wrap_angle(measured_yaw)),
+        depth_m=float(max(measured_depth, 0.0)),
+        timestamp=timestamp,
+        sonar_model=sonar.model,
+        beam_width_rad=math.radians(sonar.beam_width_deg),
+        station=pose.station,
+        settings={
+            "simulated": True,
+            "frequency_khz": sonar.frequency_khz,
+            "range_m": sonar.range_m,
+            "bins": sonar.bins,
+            "step_deg": 360.0 / bearings.size,
+            "ad_low_db": sonar.ad_low_db,
+            "ad_span_db": sonar.ad_span_db,
+        },
+    )
+    truth = np.where(axial_r <= sonar.range_m, axial_r, np.inf)
+    return SimulatedScan(scan=scan, pose=pose, truth_ranges_m=truth)
+
+
+def _add_spikes(intensities: np.ndarray, rate: float, rng: np.random.Generator) -> None:
+    """Isolated one-bin interference spikes, in place."""
+    n_beams, n_bins = intensities.shape
+    count = int(rng.poisson(rate * n_beams)) if rate > 0 else 0
+    if count:
+        beams = rng.integers(0, n_beams, size=count)
+        bins = rng.integers(0, n_bins, size=count)
+        intensities[beams, bins] = rng.integers(120, FULL_SCALE + 1, size=count).astype(np.uint8)
+
+
+def _route_yaw(route: RouteSpec, heading: float, rng: np.random.Generator) -> float:
+    base = heading if route.yaw == "along" else math.radians(route.yaw_deg)
+    return float(wrap_angle(base + math.radians(route.yaw_jitter_deg) * rng.standard_normal()))
+
+
+def _polyline_points(waypoints: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points every ``step`` metres along a polyline (ends included) and the heading at each."""
+    seg = np.diff(waypoints, axis=0)
+    lengths = np.hypot(seg[:, 0], seg[:, 1])
+    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
+    s = np.arange(0.0, cumulative[-1], step)
+    s = np.append(s, cumulative[-1]) if cumulative[-1] - s[-1] > 1e-9 else s
+    idx = np.clip(np.searchsorted(cumulative, s, side="right") - 1, 0, len(seg) - 1)
+    t = (s - cumulative[idx]) / np.where(lengths[idx] > 0, lengths[idx], 1.0)
+    points = waypoints[idx] + t[:, None] * seg[idx]
+    return points, np.arctan2(seg[idx, 1], seg[idx, 0])
+
+
+def plan_route(route: RouteSpec, spec: SimulationSpec, rng: np.random.Generator) -> list[TruePose]:
+    """Stations along ``route``: each the farthest route point (within ``max_spacing_m`` along the route)
+    whose overlap with the previous station is still at least ``route.overlap`` (see :class:`RouteSpec`).
+    """
+    points, headings = _polyline_points(np.asarray(route.waypoints, dtype=np.float64), route.step_m)
+    max_hop = len(points) if route.max_spacing_m is None else max(1, int(route.max_spacing_m / route.step_m + 1e-9))
+    poses: list[TruePose] = []
+    for level, depth in enumerate(route.depths):
+        rings = interpolate_slice(spec.site.slices(), depth)
+        if not contains(rings, points).all():
+            bad = points[~contains(rings, points)][0]
+            raise ValueError(f"route of {spec.id!r} leaves the water at depth {depth} m near {bad.tolist()}")
+        chosen = [0]
+        while chosen[-1] < len(points) - 1:
+            last = chosen[-1]
+            nxt = last + 1
+            while nxt + 1 < len(points) and nxt + 1 - last <= max_hop and overlap_fraction(
+                points[last], points[nxt + 1], rings, spec.sonar.range_m
+            ) >= route.overlap:
+                nxt += 1
+            chosen.append(nxt)
+        for k, index in enumerate(chosen):
+            name = f"{route.prefix}{k + 1:02d}" if len(route.depths) == 1 else f"{route.prefix}{level + 1}-{k + 1:02d}"
+            poses.append(TruePose(name, float(points[index, 0]), float(points[index, 1]),
+                                  _route_yaw(route, float(headings[index]), rng), float(depth)))
+    return poses
+
+
+def station_poses(spec: SimulationSpec) -> list[TruePose]:
+    """Explicit stations first, then every route's stations, in order; names must be unique."""
+    poses = [TruePose(s.name, s.x_m, s.y_m, math.radians(s.yaw_deg), s.depth_m) for s in spec.stations]
+    for k, route in enumerate(spec.routes):
+        poses.extend(plan_route(route, spec, station_rng(spec.seed, 0, k)))
+    names = [p.station for p in poses]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"spec {spec.id!r}: station names {duplicates} appear twice")
+    for pose in poses:
+        rings = interpolate_slice(spec.site.slices(), pose.depth_m)
+        if not contains(rings, np.array([[pose.x_m, pose.y_m]]))[0]:
+            raise ValueError(f"spec {spec.id!r}: station {pose.station!r} is not in the water")
+    return poses
+
+
+def simulate_site(spec: SimulationSpec, *, effects: EffectsSpec | None = None) -> SimulatedSite:
+    """Simulate every station of ``spec`` (deterministic in ``spec.seed``).
+
+    Parameters
+    ----------
+    spec : SimulationSpec
+    effects : EffectsSpec, optional
+        Override the spec's imperfections (e.g. :meth:`EffectsSpec.ideal` for a noise-free run).
+    """
+    effects = spec.effects if effects is None else effects
+    start = spec.start_time.timestamp()
+    scans = []
+    for k, pose in enumerate(station_poses(spec)):
+        rings = interpolate_slice(spec.site.slices(), pose.depth_m)
+        scans.append(simulate_scan(
+            rings, pose, spec.sonar, effects, station_rng(spec.seed, 1, k),
+            timestamp=start + k * spec.seconds_per_station, water_depth_m=spec.site.water_depth_m,
+        ))
+    return SimulatedSite(spec=spec, scans=scans)

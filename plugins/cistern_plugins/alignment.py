@@ -1,0 +1,281 @@
+"""Rigid 2-D alignment of range scans and the honest-convergence test shared by the point matchers.
+
+Conventions follow :mod:`cistern_archive.pipeline.contracts`: a pose ``(x, y, theta)`` maps a moving
+scan's points (map-oriented with its compass yaw, relative to its own station) into the reference
+scan's frame as ``q = R(theta) p + (x, y)``; then ``(x, y)`` is ``p_moving - p_reference`` and ``theta``
+the yaw correction of the moving scan.
+
+The convergence test (:func:`assess_alignment`, :func:`verdict`) asks four questions of a final pose:
+do enough moving points land on reference walls (inlier count and ratio among the points that fall
+inside the reference sonar's range), do the matched walls constrain both translation directions (the
+smaller eigenvalue of the point-to-line information matrix, per inlier — a straight featureless
+corridor fails it), and is the placement physically possible: a wall point of one scan must not lie
+in the free space the other sonar saw in front of its own echo on that bearing (the free-space
+violation ratio, checked both ways). Two scans of different places can share many near points by
+chance; they rarely avoid each other's free space.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pydantic import Field
+
+from cistern_archive.pipeline.contracts import StageParams
+from cistern_archive.sonar.scan import RangeScan
+
+
+def scan_points(scan: RangeScan) -> np.ndarray:
+    """Echo points of a scan, map-oriented by its compass yaw, relative to its station, shape (N, 2)."""
+    return scan.points()
+
+
+def transform(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Apply ``q = R(theta) p + t`` to points (N, 2); ``pose`` is (x, y, theta)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return points @ np.array([[c, s], [-s, c]]) + pose[:2]
+
+
+def transform_many(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Apply K poses (K, 3) to the same points (N, 2); returns (K, N, 2)."""
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    x = c * points[None, :, 0] - s * points[None, :, 1] + poses[:, 0, None]
+    y = s * points[None, :, 0] + c * points[None, :, 1] + poses[:, 1, None]
+    return np.stack([x, y], axis=-1)
+
+
+def compose(delta: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """The pose that applies ``pose`` first and then ``delta`` (both in the reference frame)."""
+    c, s = math.cos(delta[2]), math.sin(delta[2])
+    t = np.array([c * pose[0] - s * pose[1], s * pose[0] + c * pose[1]]) + delta[:2]
+    return np.array([t[0], t[1], pose[2] + delta[2]])
+
+
+def wrap(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+def kabsch_2d(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Weighted least-squares rigid transform (x, y, theta) taking ``src`` onto ``dst`` (Arun et al. 1987)."""
+    w = np.ones(len(src)) if weights is None else weights
+    w = w / w.sum()
+    ms, md = w @ src, w @ dst
+    a, b = src - ms, dst - md
+    sxx = w @ (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
+    sxy = w @ (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    theta = math.atan2(sxy, sxx)
+    c, s = math.cos(theta), math.sin(theta)
+    t = md - np.array([c * ms[0] - s * ms[1], s * ms[0] + c * ms[1]])
+    return np.array([t[0], t[1], theta])
+
+
+def point_to_line_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray,
+                       weights: np.ndarray | None = None) -> np.ndarray:
+    """One linearised point-to-line step (Censi 2008 without the closed form): the small (x, y, theta)
+    minimising ``sum w (n . (R p + t - q))^2``."""
+    w = np.ones(len(src)) if weights is None else weights
+    cross = src[:, 0] * normals[:, 1] - src[:, 1] * normals[:, 0]
+    jac = np.column_stack([normals, cross])
+    res = np.einsum("ij,ij->i", src - dst, normals)
+    h = jac.T @ (jac * w[:, None]) + 1e-9 * np.eye(3)
+    return -np.linalg.solve(h, jac.T @ (w * res))
+
+
+def estimate_normals(points: np.ndarray, tree: cKDTree, k: int = 6) -> np.ndarray:
+    """Unit wall normals of points from the principal axis of their ``k`` nearest neighbours."""
+    k = min(k, len(points))
+    _, idx = tree.query(points, k=k)
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb)
+    _, vecs = np.linalg.eigh(cov)
+    return vecs[:, :, 0]
+
+
+def robust_weights(residuals: np.ndarray, kind: str, scale: float) -> np.ndarray:
+    """IRLS weights of a robust loss: ``huber``, ``cauchy`` or ``truncated`` (Huber 1981)."""
+    r = np.abs(residuals)
+    if kind == "huber":
+        return np.where(r <= scale, 1.0, scale / np.maximum(r, 1e-12))
+    if kind == "cauchy":
+        return 1.0 / (1.0 + (r / scale) ** 2)
+    if kind == "truncated":
+        return (r <= scale).astype(np.float64)
+    raise ValueError(f"unknown robust loss {kind!r}")
+
+
+def robust_error(distances: np.ndarray, kind: str, scale: float) -> np.ndarray:
+    """Robust per-point error rho(d) for ``truncated`` (min(d, c)^2) or ``huber``, along the last axis."""
+    if kind == "truncated":
+        return np.minimum(distances, scale) ** 2
+    if kind == "huber":
+        return np.where(distances <= scale, distances**2, scale * (2 * distances - scale))
+    raise ValueError(f"unknown robust error {kind!r}")
+
+
+@dataclass(frozen=True)
+class AlignmentQuality:
+    """How well a moving scan, placed by a pose, fits the reference scan."""
+
+    inliers: int
+    candidates: int
+    n_points: int
+    rms_m: float
+    constraint: float
+    violation_ratio: float = 0.0
+
+    @property
+    def inlier_ratio(self) -> float:
+        """Inliers among the moving points inside the reference sonar's range."""
+        return self.inliers / self.candidates if self.candidates else 0.0
+
+
+@dataclass(frozen=True)
+class ConvergenceThresholds:
+    """Limits of :func:`verdict`; every matcher exposes them as parameters."""
+
+    inlier_distance_m: float = 0.15
+    min_inliers: int = 25
+    min_inlier_ratio: float = 0.5
+    min_constraint: float = 0.04
+    max_violation_ratio: float = 0.15
+    free_space_margin_m: float = 0.3
+
+
+class ConvergenceParams(StageParams):
+    """The convergence limits every point matcher exposes (see :class:`ConvergenceThresholds`)."""
+
+    inlier_distance_m: float = Field(0.15, gt=0)
+    min_inliers: int = Field(25, ge=3)
+    min_inlier_ratio: float = Field(0.5, ge=0, le=1)
+    min_constraint: float = Field(0.04, ge=0)
+    max_violation_ratio: float = Field(0.15, ge=0, le=1)
+    free_space_margin_m: float = Field(0.3, ge=0)
+    min_points: int = Field(20, ge=3)
+
+    def limits(self) -> ConvergenceThresholds:
+        return ConvergenceThresholds(self.inlier_distance_m, self.min_inliers, self.min_inlier_ratio,
+                                     self.min_constraint, self.max_violation_ratio, self.free_space_margin_m)
+
+
+def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
+                     max_range_m: float, inlier_distance_m: float) -> AlignmentQuality:
+    """Measure the fit of already transformed moving points ``moved`` against the reference points."""
+    dist, idx = tree.query(moved, k=1)
+    in_range = np.hypot(moved[:, 0], moved[:, 1]) <= max_range_m
+    inlier = (dist <= inlier_distance_m) & in_range
+    n_in = int(inlier.sum())
+    if n_in < 3:
+        return AlignmentQuality(n_in, int(in_range.sum()), len(moved), float("inf"), 0.0)
+    nrm = ref_normals[idx[inlier]]
+    info = nrm.T @ nrm / n_in
+    constraint = float(np.linalg.eigvalsh(info)[0])
+    rms = float(np.sqrt(np.mean(dist[inlier] ** 2)))
+    return AlignmentQuality(n_in, int(in_range.sum()), len(moved), rms, constraint)
+
+
+def verdict(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
+    """Empty string when the fit passes every limit, else the reason it does not."""
+    if quality.inliers < limits.min_inliers:
+        return f"only {quality.inliers} inlier points (< {limits.min_inliers})"
+    if quality.inlier_ratio < limits.min_inlier_ratio:
+        return f"inlier ratio {quality.inlier_ratio:.2f} < {limits.min_inlier_ratio:.2f}"
+    if quality.constraint < limits.min_constraint:
+        return f"walls constrain one direction only (constraint {quality.constraint:.3f} < {limits.min_constraint})"
+    if quality.violation_ratio > limits.max_violation_ratio:
+        return (f"{100 * quality.violation_ratio:.0f} % of wall points fall in the other scan's free space "
+                f"(> {100 * limits.max_violation_ratio:.0f} %)")
+    return ""
+
+
+class FreeSpace:
+    """The free space one scan observed: on each map-frame bearing, nothing closer than its echo."""
+
+    def __init__(self, scan: RangeScan):
+        angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
+        order = np.argsort(angles, kind="stable")
+        self.angles = angles[order]
+        self.ranges = scan.ranges_m[order]
+        self.tolerance_rad = 1.5 * (2 * np.pi / max(len(angles), 1))
+
+    def violations(self, points: np.ndarray, margin_m: float) -> tuple[int, int]:
+        """(points in observed free space, points on bearings with an echo); ``points`` relative to the station."""
+        bad, checked = self._classify(points, margin_m)
+        return int(bad.sum()), int(checked.sum())
+
+    def in_free_space(self, points: np.ndarray, margin_m: float) -> np.ndarray:
+        """Mask of points (relative to the station) the sonar saw empty."""
+        return self._classify(points, margin_m)[0]
+
+    def _classify(self, points: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+        if len(self.angles) == 0 or len(points) == 0:
+            empty = np.zeros(len(points), dtype=bool)
+            return empty, empty
+        a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
+        k = np.searchsorted(self.angles, a) % len(self.angles)
+        km = (k - 1) % len(self.angles)
+        dk = np.abs(wrap_array(self.angles[k] - a))
+        dkm = np.abs(wrap_array(self.angles[km] - a))
+        nearest = np.where(dk <= dkm, k, km)
+        gap = np.minimum(dk, dkm)
+        r_echo = self.ranges[nearest]
+        checked = (gap <= self.tolerance_rad) & np.isfinite(r_echo)
+        r = np.hypot(points[:, 0], points[:, 1])
+        bad = checked & (r < r_echo - margin_m)
+        return bad, checked
+
+
+def wrap_array(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def inverse(pose: np.ndarray) -> np.ndarray:
+    """The pose ``q -> R^T (q - t)``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    t = -np.array([c * pose[0] + s * pose[1], -s * pose[0] + c * pose[1]])
+    return np.array([t[0], t[1], -pose[2]])
+
+
+class ReferenceModel:
+    """The reference scan's points with their k-d tree, normals and free space, built once per match."""
+
+    def __init__(self, reference: RangeScan):
+        self.points = scan_points(reference)
+        self.max_range_m = float(reference.max_range_m)
+        self.tree = cKDTree(self.points) if len(self.points) else None
+        self.normals = estimate_normals(self.points, self.tree) if len(self.points) >= 3 else np.zeros((0, 2))
+        self.free = FreeSpace(reference)
+
+    def assess(self, moved: np.ndarray, inlier_distance_m: float) -> AlignmentQuality:
+        """Fit of transformed moving points (without the free-space check, see :meth:`assess_pair`)."""
+        return assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, inlier_distance_m)
+
+    def assess_pair(self, moving: RangeScan, pose: np.ndarray, limits: ConvergenceThresholds) -> AlignmentQuality:
+        """Fit of the moving scan placed by ``pose``, with the free-space violation ratio both ways."""
+        src = scan_points(moving)
+        moved = transform(src, pose)
+        q = self.assess(moved, limits.inlier_distance_m)
+        bad1, n1 = self.free.violations(moved, limits.free_space_margin_m)
+        back = transform(self.points, inverse(pose))
+        bad2, n2 = FreeSpace(moving).violations(back, limits.free_space_margin_m)
+        ratio = max(bad1 / n1 if n1 else 0.0, bad2 / n2 if n2 else 0.0)
+        return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, ratio)
+
+
+def too_few_points(reference: RangeScan, moving: RangeScan, minimum: int) -> str:
+    """The reason a pair cannot be matched for lack of echoes, or an empty string."""
+    n_ref, n_mov = int(reference.valid.sum()), int(moving.valid.sum())
+    if n_ref < minimum or n_mov < minimum:
+        return f"too few echoes: reference {n_ref}, moving {n_mov} (need {minimum})"
+    return ""
+
+
+def covariance_from_fit(src: np.ndarray, normals: np.ndarray, rms_m: float) -> np.ndarray:
+    """Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` of (x, y, theta) from point-to-line inliers."""
+    cross = src[:, 0] * normals[:, 1] - src[:, 1] * normals[:, 0]
+    jac = np.column_stack([normals, cross])
+    sigma2 = max(rms_m, 0.01) ** 2
+    return sigma2 * np.linalg.inv(jac.T @ jac + 1e-6 * np.eye(3))

@@ -1,0 +1,236 @@
+"""``correlative``: multi-resolution correlative scan matching (Olson 2009; Hess et al. 2016, Cartographer).
+
+The reference scan is rasterised into a likelihood grid: every cell holds
+``exp(-d^2 / (2 sigma^2))`` with ``d`` the distance to the nearest reference echo (a Euclidean distance
+transform), minus ``free_space_penalty`` in cells the reference sonar saw empty (closer than its echo
+on that bearing by more than ``free_space_margin_m``; the negative evidence of an occupancy-grid
+match, like the δmax feedback of McVicker et al. eq. 4). A pose's score is the mean grid value under the moving scan's points. The search is
+exhaustive over a window of translations (``±search_m``) and yaw corrections (``±search_deg``), so it
+needs no initial guess, and exact: branch and bound over a pyramid of max-pooled grids (level ``h``
+holds the maximum over the ``2^h × 2^h`` cells a translation node covers, Hess et al. Sec. IV-C), so a
+node's score at level ``h`` bounds every pose below it. The search is breadth-first and vectorised:
+at each level every surviving node is split into four children and nodes whose bound falls below the
+pruning threshold are dropped; the threshold is the best exact score found so far (by a greedy descent
+from the best node) times ``ambiguity_ratio``, so every pose within that ratio of the optimum survives
+to the finest level and the runner-up peak is known exactly.
+
+Convergence is honest on three counts: the best score reaches ``min_score``; no distinct peak
+(a translation farther than ``ambiguity_distance_m`` from the best, at any yaw) scores within
+``ambiguity_ratio`` of it (Olson's ambiguity test); and the refined placement passes the shared test
+of :mod:`cistern_plugins.alignment`. The winning pose is refined to sub-cell accuracy by a few
+point-to-line ICP iterations, as Cartographer refines its correlative estimate with a local solver.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+from scipy import ndimage
+
+from cistern_archive.pipeline.contracts import MatchResult, StageParams
+from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.alignment import (
+    ConvergenceParams,
+    FreeSpace,
+    ReferenceModel,
+    scan_points,
+    too_few_points,
+    transform,
+    verdict,
+)
+from cistern_plugins.icp import fit_covariance, run_icp
+
+
+class CorrelativeParams(ConvergenceParams):
+    """Parameters of :class:`CorrelativeMatcher` (plus the limits of :class:`ConvergenceParams`)."""
+
+    resolution_m: float = Field(0.05, gt=0)
+    sigma_m: float = Field(0.08, gt=0)
+    search_m: float = Field(2.5, gt=0)
+    search_deg: float = Field(25.0, ge=0, le=180)
+    levels: int = Field(5, ge=1, le=8)
+    min_score: float = Field(0.15, ge=0, le=1)
+    ambiguity_ratio: float = Field(0.9, gt=0, le=1)
+    ambiguity_distance_m: float = Field(0.5, gt=0)
+    refine_iterations: int = Field(30, ge=0)
+    free_space_penalty: float = Field(1.0, ge=0)
+
+
+class LikelihoodPyramid:
+    """The likelihood grid of a reference scan and its max-pooled levels.
+
+    ``level[h][r, c]`` is the maximum of the base grid over rows ``r .. r + 2^h - 1`` and columns
+    ``c .. c + 2^h - 1``, so a lookup at a node's corner bounds all translations in the node.
+    """
+
+    def __init__(self, points: np.ndarray, resolution_m: float, sigma_m: float, margin_m: float, levels: int,
+                 free: FreeSpace | None = None, free_margin_m: float = 0.3, penalty: float = 0.0):
+        self.resolution = resolution_m
+        lo = points.min(axis=0) - margin_m
+        hi = points.max(axis=0) + margin_m
+        shape = np.ceil((hi - lo) / resolution_m).astype(int) + 1
+        self.origin = lo
+        occupied = np.ones((shape[1], shape[0]), dtype=bool)
+        cells = np.floor((points - lo) / resolution_m).astype(int)
+        occupied[cells[:, 1], cells[:, 0]] = False
+        dist = ndimage.distance_transform_edt(occupied) * resolution_m
+        base = np.exp(-0.5 * (dist / sigma_m) ** 2).astype(np.float32)
+        if free is not None and penalty > 0:
+            rows, cols = np.mgrid[0 : shape[1], 0 : shape[0]]
+            centres = np.column_stack([cols.ravel(), rows.ravel()]) * resolution_m + lo + resolution_m / 2
+            bad = free.in_free_space(centres, free_margin_m).reshape(base.shape)
+            base[bad] -= np.float32(penalty)
+        self.levels = [base]
+        for h in range(1, levels):
+            step = 2 ** (h - 1)
+            prev = np.pad(self.levels[-1], ((0, step), (0, step)))
+            pooled = np.maximum(np.maximum(prev[:-step, :-step], prev[step:, :-step]),
+                                np.maximum(prev[:-step, step:], prev[step:, step:]))
+            self.levels.append(pooled)
+
+    def cells(self, points: np.ndarray) -> np.ndarray:
+        """Integer (col, row) of points, shape (..., 2)."""
+        return np.floor((points - self.origin) / self.resolution).astype(np.int64)
+
+    def score(self, level: int, point_cells: np.ndarray, offsets: np.ndarray, angle_idx: np.ndarray) -> np.ndarray:
+        """Mean grid value of level ``level`` under rotated points shifted by cell offsets.
+
+        ``point_cells`` is (R, N, 2) for R rotations; ``offsets`` (K, 2) cell shifts and ``angle_idx`` (K,)
+        rotation index of each node. Out-of-grid points count 0.
+        """
+        grid = self.levels[level]
+        h, w = grid.shape
+        c = point_cells[angle_idx] + offsets[:, None, :]  # (K, N, 2)
+        inside = (c[..., 0] >= 0) & (c[..., 0] < w) & (c[..., 1] >= 0) & (c[..., 1] < h)
+        vals = np.where(inside, grid[np.clip(c[..., 1], 0, h - 1), np.clip(c[..., 0], 0, w - 1)], 0.0)
+        return vals.mean(axis=1)
+
+
+def _angles(points: np.ndarray, p: CorrelativeParams) -> np.ndarray:
+    """Yaw candidates: the step moves the farthest point by at most one cell (Hess et al. eq. 7)."""
+    if p.search_deg == 0:
+        return np.zeros(1)
+    d_max = max(float(np.percentile(np.hypot(points[:, 0], points[:, 1]), 95)), p.resolution_m)
+    step = math.acos(max(-1.0, 1 - p.resolution_m**2 / (2 * d_max**2)))
+    n = int(math.ceil(math.radians(p.search_deg) / step))
+    return np.arange(-n, n + 1) * step
+
+
+def branch_and_bound(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, window_cells: int,
+                     ambiguity_ratio: float, floor: float = -np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """All finest-level candidates within ``ambiguity_ratio`` of the optimum and above ``floor``:
+    (K, 3) [col, row, angle idx] offsets and their exact scores, best first (empty when none)."""
+    top = len(pyr.levels) - 1
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    rotated = np.stack([c * points[:, 0] - s * points[:, 1], s * points[:, 0] + c * points[:, 1]], axis=-1)
+    point_cells = pyr.cells(rotated)
+    step = 2**top
+    span = np.arange(-window_cells, window_cells + 1, step)
+    gx, gy, ga = np.meshgrid(span, span, np.arange(len(angles)), indexing="ij")
+    nodes = np.column_stack([gx.ravel(), gy.ravel(), ga.ravel()])
+    bounds = pyr.score(top, point_cells, nodes[:, :2], nodes[:, 2])
+    best = _greedy_descent(pyr, point_cells, nodes[np.argmax(bounds)], top, window_cells)
+    for level in range(top, 0, -1):
+        keep = bounds >= max(_threshold(best, ambiguity_ratio), floor)
+        nodes = nodes[keep]
+        if len(nodes) == 0:
+            return np.zeros((0, 3), dtype=np.int64), np.zeros(0)
+        half = 2 ** (level - 1)
+        kids = np.concatenate([nodes + [dx, dy, 0] for dx in (0, half) for dy in (0, half)])
+        kids = kids[(np.abs(kids[:, 0]) <= window_cells) & (np.abs(kids[:, 1]) <= window_cells)]
+        nodes = kids
+        bounds = pyr.score(level - 1, point_cells, nodes[:, :2], nodes[:, 2])
+        if level - 1 > 0:
+            best = max(best, _greedy_descent(pyr, point_cells, nodes[np.argmax(bounds)], level - 1, window_cells))
+        else:
+            best = max(best, float(bounds.max()))
+    keep = bounds >= max(_threshold(best, ambiguity_ratio), floor)
+    order = np.argsort(-bounds[keep], kind="stable")
+    return nodes[keep][order], bounds[keep][order]
+
+
+def _threshold(best: float, ratio: float) -> float:
+    """Pruning threshold: ``ratio`` of the best score, measured below it (scores may be negative)."""
+    return best - (1.0 - ratio) * abs(best)
+
+
+def _greedy_descent(pyr: LikelihoodPyramid, point_cells: np.ndarray, node: np.ndarray, level: int,
+                    window_cells: int) -> float:
+    """Exact score of the leaf reached by always taking the best child: a lower bound of the optimum."""
+    node = node.copy()
+    for lv in range(level, 0, -1):
+        half = 2 ** (lv - 1)
+        kids = np.array([node + [dx, dy, 0] for dx in (0, half) for dy in (0, half)])
+        kids = kids[(np.abs(kids[:, 0]) <= window_cells) & (np.abs(kids[:, 1]) <= window_cells)]
+        sc = pyr.score(lv - 1, point_cells, kids[:, :2], kids[:, 2])
+        node = kids[int(np.argmax(sc))]
+    return float(pyr.score(0, point_cells, node[None, :2], node[None, 2])[0])
+
+
+class CorrelativeMatcher:
+    """Exhaustive multi-resolution correlative matcher with branch and bound (the ``correlative`` matcher)."""
+
+    name: ClassVar[str] = "correlative"
+    Params: ClassVar[type[StageParams]] = CorrelativeParams
+
+    def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
+              rng: np.random.Generator) -> MatchResult:
+        """Locate ``moving`` in ``reference``'s frame; the search is deterministic, ``rng`` is unused."""
+        p = params if isinstance(params, CorrelativeParams) else CorrelativeParams.model_validate(params.model_dump())
+        start = time.perf_counter()
+        why = too_few_points(reference, moving, p.min_points)
+        if why:
+            return _result(np.full(3, np.nan), 0.0, False, why, 0, start)
+        model = ReferenceModel(reference)
+        src = scan_points(moving)
+        pyr = LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, p.search_m + 4 * p.sigma_m, p.levels,
+                                model.free, p.free_space_margin_m, p.free_space_penalty)
+        angles = _angles(src, p)
+        window = int(math.ceil(p.search_m / p.resolution_m))
+        nodes, scores = branch_and_bound(pyr, src, angles, window, p.ambiguity_ratio,
+                                         floor=p.ambiguity_ratio * p.min_score)
+        if len(nodes) == 0:
+            reason = f"no pose in the window scores {p.ambiguity_ratio * p.min_score:.2f} or more"
+            return _result(np.full(3, np.nan), 0.0, False, reason, 0, start)
+        best = np.array([nodes[0, 0] * p.resolution_m, nodes[0, 1] * p.resolution_m, angles[nodes[0, 2]]])
+        reason = ""
+        if scores[0] < p.min_score:
+            reason = f"best correlation score {scores[0]:.2f} < {p.min_score:.2f}"
+        rival = _rival(nodes, scores, angles, p)
+        if not reason and rival is not None:
+            reason = (f"ambiguous: a second peak {rival[0]:.2f} m / {rival[1]:.1f}° away scores "
+                      f"{rival[2]:.2f} against the best {scores[0]:.2f}")
+        pose = best
+        iterations = len(nodes)
+        if p.refine_iterations:
+            out = run_icp(model, src, best, variant="point-to-line", max_iterations=p.refine_iterations,
+                          max_correspondence_m=p.inlier_distance_m + 2 * p.sigma_m, trim_fraction=0.8,
+                          tolerance_m=1e-4)
+            if math.hypot(*(out.pose[:2] - best[:2])) <= 4 * p.resolution_m:
+                pose = out.pose
+        quality = model.assess_pair(moving, pose, p.limits())
+        reason = reason or verdict(quality, p.limits())
+        cov = fit_covariance(model, transform(src, pose), p.inlier_distance_m, quality.rms_m)
+        return _result(pose, float(scores[0]), not reason, reason, iterations, start, cov)
+
+
+def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: CorrelativeParams):
+    """The best candidate far from the winner, as (distance m, angle deg, score), or ``None``."""
+    d = np.hypot(nodes[:, 0] - nodes[0, 0], nodes[:, 1] - nodes[0, 1]) * p.resolution_m
+    da = np.degrees(np.abs(angles[nodes[:, 2]] - angles[nodes[0, 2]]))
+    far = np.flatnonzero(d > p.ambiguity_distance_m)
+    if len(far) == 0:
+        return None
+    k = far[0]
+    return float(d[k]), float(da[k]), float(scores[k])
+
+
+def _result(pose: np.ndarray, score: float, converged: bool, reason: str, iterations: int, start: float,
+            covariance: np.ndarray | None = None) -> MatchResult:
+    return MatchResult(i=-1, j=-1, dx_m=float(pose[0]), dy_m=float(pose[1]), dyaw_rad=float(pose[2]),
+                       weight=score, converged=converged, iterations=iterations,
+                       seconds=time.perf_counter() - start, reason=reason, covariance=covariance)

@@ -1,0 +1,108 @@
+"""Evidence-grid mapper: placed scans fused into one log-odds grid per depth slice (Table III).
+
+Each placed scan is moved to its pose and its inverse-sonar-model update (beam cone, free space before
+the echo, echo band ``± max(bin, cell) / 2``, see :mod:`cistern_archive.grid.evidence`) is added to the
+slice's :class:`~cistern_archive.grid.tiles.TiledGrid`, then the slice is clamped. Scans are grouped into
+slices by depth: sorted by depth, a scan joins the current slice while it is within
+``depth_tolerance_m`` of the slice's first scan; a slice's depth is the mean of its scans' depths.
+
+Storage: the fused grid lives in fixed-size tiles allocated on touch (the paper used an octree); the
+dense :class:`~cistern_archive.pipeline.contracts.EvidenceGrid` handed on is the non-zero bounding box
+of the tiles. ``benchmarks/RESULTS.md`` compares time and memory with a dense array and OctoMap.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from cistern_archive.grid.evidence import SonarModel, scan_window
+from cistern_archive.grid.tiles import TiledGrid
+from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses, StageParams
+from cistern_archive.sonar.scan import RangeScan
+
+
+class GridParams(StageParams):
+    """Parameters of :class:`EvidenceGridMapper`."""
+
+    cell_m: float = Field(0.05, gt=0, description="cell size r_c (m)")
+    l_occ: float = Field(0.85, gt=0, description="log-odds added at an echo")
+    l_free: float = Field(-0.4, lt=0, description="log-odds added in front of an echo")
+    clamp_min: float = Field(-4.0, lt=0)
+    clamp_max: float = Field(4.0, gt=0)
+    free_no_echo: bool = Field(False, description="beams without an echo free their cone to max range")
+    beam_width_deg: float | None = Field(None, gt=0, lt=90, description="override the scans' beam width")
+    depth_tolerance_m: float = Field(0.25, ge=0, description="scans this close in depth share a slice")
+    tile_cells: int = Field(64, ge=8, le=1024, description="tile side in cells")
+    pad_cells: int = Field(2, ge=0, description="unknown cells kept around the exported grid")
+
+
+class EvidenceGridMapper:
+    """Log-odds evidence-grid mapper (``evidence-grid``)."""
+
+    name: ClassVar[str] = "evidence-grid"
+    Params: ClassVar[type[StageParams]] = GridParams
+
+    def build(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams) -> MapResult:
+        """Fuse every placed scan into the grid of its depth slice."""
+        p = params if isinstance(params, GridParams) else GridParams.model_validate(params.model_dump())
+        start = time.perf_counter()
+        model = SonarModel(
+            l_occ=p.l_occ, l_free=p.l_free, clamp_min=p.clamp_min, clamp_max=p.clamp_max,
+            free_no_echo=p.free_no_echo,
+            beam_width_rad=None if p.beam_width_deg is None else float(np.radians(p.beam_width_deg)),
+        )
+        placed = [k for k in range(len(scans)) if bool(poses.placed[k])]
+        grids: list[EvidenceGrid] = []
+        tile_bytes = 0
+        n_tiles = 0
+        for slice_scans in depth_slices([scans[k] for k in placed], placed, p.depth_tolerance_m):
+            tiled = TiledGrid(cell_m=p.cell_m, tile=p.tile_cells)
+            for k in slice_scans:
+                window = scan_window(
+                    scans[k], poses.xy_m[k], float(poses.yaw_rad[k]),
+                    origin_xy_m=tiled.origin_xy_m, cell_m=p.cell_m, model=model,
+                )
+                if window is not None:
+                    tiled.add_window(window)
+                    tiled.clamp(p.clamp_min, p.clamp_max)
+            tile_bytes += tiled.nbytes()
+            n_tiles += len(tiled.tiles)
+            dense, row0, col0 = tiled.to_dense(pad=p.pad_cells)
+            depth = float(np.nanmean([scans[k].depth_m for k in slice_scans])) if any(
+                np.isfinite(scans[k].depth_m) for k in slice_scans) else 0.0
+            grids.append(
+                EvidenceGrid(
+                    log_odds=dense,
+                    origin_xy_m=(col0 * p.cell_m, row0 * p.cell_m),
+                    cell_m=p.cell_m,
+                    depth_m=depth,
+                )
+            )
+        stats = {
+            "seconds": time.perf_counter() - start,
+            "scans_fused": float(len(placed)),
+            "slices": float(len(grids)),
+            "tiles": float(n_tiles),
+            "tile_bytes": float(tile_bytes),
+        }
+        return MapResult(grids=tuple(grids), stats=stats)
+
+
+def depth_slices(scans: Sequence[RangeScan], indices: Sequence[int], tolerance_m: float) -> list[list[int]]:
+    """Group scan indices into depth slices, shallowest first (see the module docstring)."""
+    depths = [float(s.depth_m) if np.isfinite(s.depth_m) else 0.0 for s in scans]
+    order = sorted(range(len(scans)), key=lambda k: (depths[k], indices[k]))
+    slices: list[list[int]] = []
+    first_depth = None
+    for k in order:
+        depth = depths[k]
+        if first_depth is None or depth - first_depth > tolerance_m:
+            slices.append([])
+            first_depth = depth
+        slices[-1].append(indices[k])
+    return slices

@@ -1,0 +1,332 @@
+"""Pair-wise scan matching with a particle filter (McVicker et al., Tables I–II, eqs. 3–6).
+
+Scan ``j`` (moving) is located in the evidence grid ``m_i`` built from scan ``i`` (reference) alone,
+with scan ``i``'s sonar at the origin of a compass-aligned frame. A particle is ``[x, y, θ]``: the
+position of scan ``j``'s sonar in that frame and a correction ``θ`` to scan ``j``'s compass heading,
+so the measured compass difference is the centre of the θ distribution.
+
+Decisions where the paper's text is ambiguous
+---------------------------------------------
+* **Eq. 3** – ``φ = exp(-(δs - δm)² / (2 σc²))`` with ``σc = 2 r_c`` (``a`` normalises the peak to 1).
+* **Eq. 4** – every beam of scan ``j`` with an echo contributes ``+φ`` when ``|δs - δm| < δmax`` and
+  ``-(1 - φ)`` otherwise (negative feedback); a beam whose ray finds no occupied cell counts as
+  ``δm = ∞`` and so contributes ``-1``. The particle's weight is the **mean** of the contributions over
+  the beams used, so it lies in ``[-1, 1]`` whatever the beam count: ``1`` means every beam lands on a
+  wall of ``m_i``; ``0`` means as many beams agree as disagree. ``tau_pw`` (eq. 6) is in these units;
+  the paper's 6.0 was a sum over the beams of its scans.
+* **δm** – ``measurement_model="raycast"`` casts a ray from the particle along the beam to the first
+  cell of ``m_i`` whose occupancy probability exceeds ``weight_threshold`` (sphere tracing over the
+  distance field, which returns the same first hit as a half-cell march, see
+  :mod:`cistern_archive.grid.raycast`). ``measurement_model="distance-field"`` is the likelihood-field
+  approximation: ``|δs - δm|`` is replaced by the distance from the beam's end point to the nearest
+  occupied cell, so the per-cell contribution is precomputed once per map and a particle costs one
+  look-up per beam. It ignores walls crossed before the echo; it is ~10× faster (see
+  ``benchmarks/RESULTS.md``).
+* **Resampling** – low-variance (systematic) resampling. ``resample_weighting="shifted"`` draws with
+  probability proportional to ``w - min(w)`` (the paper's "proportional to its weight", made
+  non-negative); ``"exponential"`` draws proportional to ``exp(sharpness * (w - max w))``, which
+  concentrates faster on the same ranking.
+* **Eqs. 5–6** – before resampling, ``σ_p`` is the larger of the standard deviations of the particles'
+  x and y; ``w`` is the mean particle weight. Their exponential averages use ``chi_sigma`` and
+  ``chi_w`` and start at the first iteration's values. Converged when ``σ_p,μ ≤ r_c`` and
+  ``w_μ ≥ tau_pw``, otherwise after ``n_iterations`` the pair is reported not converged with the reason.
+* **Output** – ``dx, dy`` is the mean particle position after the last resampling (``p_j - p_i``),
+  ``dyaw`` the circular mean of θ, ``weight`` the final ``w_μ``, ``covariance`` the particles'
+  covariance of (x, y, θ).
+
+Improvements over the paper, off by default where they change the method: ``init_oversample > 1``
+weighs that many more uniform samples in the first iteration and keeps ``n_particles`` of them
+(coarse search before the fine filter).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from cistern_archive.grid.evidence import DenseMap, SonarModel, dense_scan_map
+from cistern_archive.grid.raycast import FAR_M, OccupancyLookup
+from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
+from cistern_archive.sonar.scan import RangeScan
+
+
+class PFParams(StageParams):
+    """Parameters of :class:`PFPairwiseMatcher` (Tables I–II and Sec. IV of the paper)."""
+
+    cell_m: float = Field(0.05, gt=0, description="map cell size r_c (m); sigma_c = 2 r_c")
+    n_particles: int = Field(500, ge=10, le=100_000, description="Num_Particles")
+    l_init_m: float = Field(6.0, gt=0, description="side of the uniform initial square L_init (m)")
+    theta_init_std_deg: float = Field(2.0, ge=0, description="std of the initial heading correction (deg)")
+    sigma_n_xy_m: float = Field(0.02, ge=0, description="propagation noise sigma_n of x and y (m)")
+    sigma_n_theta_deg: float = Field(0.5, ge=0, description="propagation noise sigma_n of theta (deg)")
+    delta_max_m: float = Field(0.3, gt=0, description="delta_max of eq. 4 (m)")
+    weight_threshold: float = Field(0.6, gt=0, lt=1, description="WEIGHT_THRESHOLD: occupied probability")
+    n_iterations: int = Field(60, ge=1, le=10_000, description="Num_Iterations")
+    chi_w: float = Field(2.0 / 7.0, gt=0, le=1, description="smoothing of the weight average (eq. 6)")
+    chi_sigma: float = Field(2.0 / 5.0, gt=0, le=1, description="smoothing of the std average (eq. 5)")
+    tau_pw: float = Field(0.25, ge=-1, le=1, description="weight threshold of eq. 6 (mean per-beam units)")
+    measurement_model: Literal["raycast", "distance-field"] = "distance-field"
+    resample_weighting: Literal["shifted", "exponential"] = "exponential"
+    sharpness: float = Field(40.0, gt=0, description="exponent scale of 'exponential' resampling")
+    init_oversample: int = Field(8, ge=1, le=100, description="uniform samples weighed at start, per particle")
+    max_beams: int = Field(400, ge=1, description="beams of the moving scan used (evenly subsampled)")
+    min_beams: int = Field(10, ge=1, description="fewer echoes than this: not converged")
+    history_snapshots: int = Field(4, ge=0, le=50, description="particle snapshots kept for the report")
+    snapshot_particles: int = Field(200, ge=1, description="particles kept per snapshot")
+    map_l_occ: float = Field(0.85, gt=0, description="log-odds of an echo cell in m_i")
+    map_l_free: float = Field(-0.4, lt=0, description="log-odds of a free cell in m_i")
+
+
+@dataclass(frozen=True, eq=False)
+class _Beams:
+    """The moving scan's beams used for weighting: range and map-frame direction at θ = 0."""
+
+    ranges: np.ndarray
+    cos: np.ndarray
+    sin: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class _MapModel:
+    """``m_i`` ready for weighting: occupancy look-up and the precomputed likelihood field."""
+
+    dense: DenseMap
+    lookup: OccupancyLookup
+    score_flat: np.ndarray
+
+
+class PFPairwiseMatcher:
+    """Particle-filter pair-wise matcher (``pf-pairwise``)."""
+
+    name: ClassVar[str] = "pf-pairwise"
+    Params: ClassVar[type[StageParams]] = PFParams
+
+    def __init__(self) -> None:
+        self._maps: OrderedDict[bytes, _MapModel] = OrderedDict()
+
+    # ------------------------------------------------------------------------------------ API
+    def match(
+        self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator
+    ) -> MatchResult:
+        """Locate ``moving`` in the map of ``reference`` (Table II); ``i = j = -1``."""
+        p = params if isinstance(params, PFParams) else PFParams.model_validate(params.model_dump())
+        start = time.perf_counter()
+        refusal = _refuse(reference, moving, p)
+        if refusal:
+            return _failed(refusal, time.perf_counter() - start)
+        model = self._map(reference, p)
+        if not model.lookup.any_occupied:
+            return _failed(
+                f"map of the reference scan has no cell above weight_threshold={p.weight_threshold}",
+                time.perf_counter() - start,
+            )
+        beams = _select_beams(moving, p.max_beams)
+        return _run_filter(model, beams, p, rng, start)
+
+    # ------------------------------------------------------------------------------------ map
+    def _map(self, reference: RangeScan, p: PFParams) -> _MapModel:
+        """``m_i`` of Table I line 2, cached for the few pairs that share a reference scan."""
+        key = _map_key(reference, p)
+        if key in self._maps:
+            self._maps.move_to_end(key)
+            return self._maps[key]
+        sonar = SonarModel(l_occ=p.map_l_occ, l_free=p.map_l_free, free_no_echo=False)
+        dense = dense_scan_map(reference, cell_m=p.cell_m, model=sonar, margin_m=p.delta_max_m + p.cell_m)
+        lookup = OccupancyLookup(dense.occupied(p.weight_threshold), dense.origin_xy_m, dense.cell_m)
+        model = _MapModel(dense=dense, lookup=lookup, score_flat=_score(lookup.distance_flat, p))
+        self._maps[key] = model
+        while len(self._maps) > 4:
+            self._maps.popitem(last=False)
+        return model
+
+
+# ------------------------------------------------------------------------------------ helpers
+def _map_key(scan: RangeScan, p: PFParams) -> bytes:
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.ascontiguousarray(scan.bearings_rad).tobytes())
+    h.update(np.ascontiguousarray(scan.ranges_m).tobytes())
+    h.update(repr((scan.yaw_rad, scan.bin_size_m, scan.beam_width_rad, scan.max_range_m)).encode())
+    h.update(repr((p.cell_m, p.weight_threshold, p.map_l_occ, p.map_l_free, p.delta_max_m)).encode())
+    return h.digest()
+
+
+def _score(distance: np.ndarray, p: PFParams) -> np.ndarray:
+    """Per-beam contribution of eqs. 3–4 as a function of ``|δs - δm|`` (float32)."""
+    sigma_c = 2.0 * p.cell_m
+    d = distance.astype(np.float64)
+    phi = np.exp(-(d * d) / (2.0 * sigma_c * sigma_c))
+    return np.where(d < p.delta_max_m, phi, -(1.0 - phi)).astype(np.float32)
+
+
+def _refuse(reference: RangeScan, moving: RangeScan, p: PFParams) -> str:
+    """Why a pair cannot be matched at all (empty string if it can)."""
+    for label, scan in (("reference", reference), ("moving", moving)):
+        n = int(np.count_nonzero(scan.valid))
+        if n == 0:
+            return f"{label} scan has no echoes (every beam empty)"
+        if n < p.min_beams:
+            return f"{label} scan has {n} echoes, fewer than min_beams={p.min_beams}"
+    return ""
+
+
+def _failed(reason: str, seconds: float) -> MatchResult:
+    return MatchResult(
+        i=-1, j=-1, dx_m=float("nan"), dy_m=float("nan"), dyaw_rad=float("nan"), weight=float("nan"),
+        converged=False, iterations=0, seconds=seconds, reason=reason,
+    )
+
+
+def _select_beams(scan: RangeScan, max_beams: int) -> _Beams:
+    idx = np.flatnonzero(scan.valid)
+    if idx.size > max_beams:
+        idx = idx[np.linspace(0, idx.size - 1, max_beams).round().astype(np.int64)]
+    angle = scan.yaw_rad + scan.bearings_rad[idx]
+    return _Beams(ranges=scan.ranges_m[idx], cos=np.cos(angle), sin=np.sin(angle))
+
+
+def _weigh(model: _MapModel, beams: _Beams, particles: np.ndarray, p: PFParams) -> np.ndarray:
+    """Mean per-beam weight (eqs. 3–4) of every particle, shape (P,)."""
+    x, y, th = particles[:, 0:1], particles[:, 1:2], particles[:, 2:3]
+    c, s = np.cos(th), np.sin(th)
+    ux = c * beams.cos - s * beams.sin  # (P, B) beam directions
+    uy = s * beams.cos + c * beams.sin
+    if p.measurement_model == "distance-field":
+        flat = model.lookup.flat_index(x + beams.ranges * ux, y + beams.ranges * uy)
+        return model.score_flat[flat].mean(axis=1, dtype=np.float64)
+    angle = np.arctan2(uy, ux)
+    hit = model.lookup.sphere_trace(x, y, angle, beams.ranges + p.delta_max_m)
+    diff = np.where(np.isfinite(hit), np.abs(beams.ranges - hit), FAR_M)
+    sigma_c = 2.0 * p.cell_m
+    phi = np.exp(-(diff * diff) / (2.0 * sigma_c * sigma_c))
+    return np.where(diff < p.delta_max_m, phi, -(1.0 - phi)).mean(axis=1)
+
+
+def _low_variance(probabilities: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices drawn by systematic (low-variance) resampling (Thrun et al. 2005, Table 4.4)."""
+    cumulative = np.cumsum(probabilities)
+    cumulative /= cumulative[-1]
+    points = (rng.random() + np.arange(n)) / n
+    return np.minimum(np.searchsorted(cumulative, points, side="right"), probabilities.size - 1)
+
+
+def _resample_probabilities(w: np.ndarray, p: PFParams) -> np.ndarray:
+    if p.resample_weighting == "shifted":
+        shifted = w - w.min()
+        total = shifted.sum()
+        return shifted if total > 0 else np.ones_like(w)
+    return np.exp(p.sharpness * (w - w.max()))
+
+
+def _spread(particles: np.ndarray) -> float:
+    """σ_p of eq. 5: the larger of the x and y standard deviations."""
+    return float(max(particles[:, 0].std(), particles[:, 1].std()))
+
+
+class _History:
+    """Collects the per-iteration averages and a few particle snapshots."""
+
+    def __init__(self, p: PFParams):
+        self.p = p
+        self.weight: list[float] = []
+        self.std: list[float] = []
+        self.snaps: list[tuple[int, np.ndarray]] = []
+
+    def record(self, iteration: int, w_avg: float, s_avg: float, particles: np.ndarray, w: np.ndarray) -> None:
+        self.weight.append(w_avg)
+        self.std.append(s_avg)
+        if self.p.history_snapshots and (iteration & (iteration - 1)) == 0:
+            self.snaps.append((iteration, self._snapshot(particles, w)))
+
+    def _snapshot(self, particles: np.ndarray, w: np.ndarray) -> np.ndarray:
+        k = min(len(particles), self.p.snapshot_particles)
+        idx = np.linspace(0, len(particles) - 1, k).round().astype(np.int64)
+        return np.column_stack([particles[idx], w[idx]]).astype(np.float32)
+
+    def finish(self, iteration: int, particles: np.ndarray, w: np.ndarray) -> MatchHistory:
+        if self.p.history_snapshots == 0:
+            return MatchHistory(weight_avg=np.array(self.weight), std_avg=np.array(self.std))
+        if not self.snaps or self.snaps[-1][0] != iteration:
+            self.snaps.append((iteration, self._snapshot(particles, w)))
+        n = min(self.p.history_snapshots, len(self.snaps))
+        pick = sorted(set(np.linspace(0, len(self.snaps) - 1, n).round().astype(int).tolist()))
+        chosen = [self.snaps[k] for k in pick]
+        return MatchHistory(
+            weight_avg=np.array(self.weight),
+            std_avg=np.array(self.std),
+            snapshots=tuple(s for _, s in chosen),
+            snapshot_iterations=tuple(int(t) for t, _ in chosen),
+        )
+
+
+def _initial_particles(n: int, p: PFParams, rng: np.random.Generator) -> np.ndarray:
+    """Uniform in the L_init × L_init square around the origin; θ around the compass difference."""
+    half = 0.5 * p.l_init_m
+    xy = rng.uniform(-half, half, size=(n, 2))
+    theta = rng.normal(0.0, math.radians(p.theta_init_std_deg), size=(n, 1))
+    return np.hstack([xy, theta])
+
+
+def _run_filter(
+    model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, start: float
+) -> MatchResult:
+    """Table II: propagate, weigh, average (eqs. 5–6), resample, until converged or Num_Iterations."""
+    noise = np.array([p.sigma_n_xy_m, p.sigma_n_xy_m, math.radians(p.sigma_n_theta_deg)])
+    particles = _initial_particles(p.n_particles * p.init_oversample, p, rng)
+    history = _History(p)
+    w_avg = s_avg = float("nan")
+    converged = False
+    iteration = 0
+    w = np.zeros(len(particles))
+    for iteration in range(p.n_iterations):
+        if iteration > 0:
+            particles = particles + rng.normal(0.0, 1.0, particles.shape) * noise
+        w = _weigh(model, beams, particles, p)
+        w_now, s_now = float(w.mean()), _spread(particles)
+        if iteration == 0:
+            w_avg, s_avg = w_now, s_now
+        else:
+            w_avg = p.chi_w * w_now + (1.0 - p.chi_w) * w_avg
+            s_avg = p.chi_sigma * s_now + (1.0 - p.chi_sigma) * s_avg
+        history.record(iteration, w_avg, s_avg, particles, w)
+        keep = _low_variance(_resample_probabilities(w, p), p.n_particles, rng)
+        particles, w = particles[keep], w[keep]
+        if s_avg <= p.cell_m and w_avg >= p.tau_pw:
+            converged = True
+            break
+    iterations = iteration + 1
+    reason = "" if converged else _why(w_avg, s_avg, iterations, p)
+    theta = math.atan2(float(np.sin(particles[:, 2]).mean()), float(np.cos(particles[:, 2]).mean()))
+    return MatchResult(
+        i=-1, j=-1,
+        dx_m=float(particles[:, 0].mean()),
+        dy_m=float(particles[:, 1].mean()),
+        dyaw_rad=theta,
+        weight=w_avg,
+        converged=converged,
+        iterations=iterations,
+        seconds=time.perf_counter() - start,
+        reason=reason,
+        covariance=np.cov(particles.T),
+        history=history.finish(iteration, particles, w),
+    )
+
+
+def _why(w_avg: float, s_avg: float, iterations: int, p: PFParams) -> str:
+    problems = []
+    if w_avg < p.tau_pw:
+        problems.append(
+            f"weight average {w_avg:.3f} below tau_pw={p.tau_pw:g} (too few beams agree with the map: "
+            "the scans may not overlap, or the compass is off)"
+        )
+    if s_avg > p.cell_m:
+        problems.append(
+            f"particle spread {s_avg:.3f} m above r_c={p.cell_m:g} m (position ambiguous)"
+        )
+    return f"not converged after {iterations} iterations: " + "; ".join(problems)

@@ -1,0 +1,45 @@
+"""Helpers for the service tests: a small generated catalog and result comparison."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+from cistern_archive.archive.digest import file_sha256
+
+# The typer app in standalone mode: exit codes exactly as the commands raise them.
+CLI = [sys.executable, "-c", "from cistern_archive.cli import app; app(prog_name='cistern-archive')"]
+# Reports without the 3D model and the per-pair/per-scan figures render in a fraction of the time;
+# the report has its own tests.
+FAST_REPORT = {"model": False, "max_pair_figures": 0, "max_fan_figures": 0, "dpi": 50}
+
+
+def make_catalog(root: Path, n_sites: int = 2, *, seed: int = 7) -> Path:
+    """A catalog of ``n_sites`` simulated two-station cisterns under ``root``."""
+    from cistern_archive.service.synthetic import write_synthetic_catalog
+
+    write_synthetic_catalog(root, n_sites, seed=seed, stations=2)
+    return root
+
+
+def copy_catalog(template: Path, target: Path) -> Path:
+    shutil.copytree(template, target)
+    return target
+
+
+def comparable_result(path: Path) -> dict:
+    """``result.json`` without wall-clock timings (which differ between runs and machines)."""
+    data = json.loads(path.read_text(encoding="utf-8"))
+    data.pop("timings_s", None)
+    for pair in data.get("pairs", []):
+        pair.pop("seconds", None)
+    return data
+
+
+def report_is_complete(site_dir: Path) -> bool:
+    """Every file listed in ``build.json`` exists with the digest recorded there."""
+    info = json.loads((site_dir / "build.json").read_text(encoding="utf-8"))
+    return bool(info["files"]) and all(
+        file_sha256(site_dir / name)[0] == digest for name, digest in info["files"].items())

@@ -1,0 +1,125 @@
+"""The bundled demo sites: valid records, the sites the issue asks for, and bytes equal to a fresh run."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cistern_archive.catalog.loader import load_record
+from cistern_archive.catalog.models import Segmentation
+from cistern_archive.catalog.validate import validate_catalog
+from cistern_archive.sonar.geometry import overlap_fraction
+from cistern_archive.sonar.interchange import read_scan
+from cistern_archive.sonar.segmentation import segment
+from cistern_archive.sonar.simulation_output import write_site
+from cistern_archive.sonar.simulator import simulate_site
+from cistern_archive.sonar.simulator_spec import load_spec
+
+CATALOG = Path(__file__).resolve().parents[1] / "catalog"
+SITES = ["bell-cistern", "gatto-pardo", "lair-pool", "mdina-site-8", "water-gallery"]
+
+
+def record(site: str):
+    return load_record(CATALOG / "sites" / f"{site}.yaml", CATALOG).record
+
+
+def truth(site: str) -> dict:
+    return json.loads((CATALOG / "data" / site / "truth.json").read_text())
+
+
+def test_bundled_catalog_validates():
+    report = validate_catalog(CATALOG)
+    assert report.ok, report.problems
+    assert sorted(loaded.record.id for loaded in report.records) >= SITES
+
+
+@pytest.mark.parametrize("site", SITES)
+def test_committed_files_equal_a_fresh_simulation(site: str, tmp_path: Path):
+    spec_path = CATALOG / "specs" / f"{site}.yaml"
+    fresh = tmp_path / "catalog"
+    (fresh / "specs").mkdir(parents=True)
+    (fresh / "specs" / spec_path.name).write_bytes(spec_path.read_bytes())
+    write_site(simulate_site(load_spec(spec_path)), fresh, spec_path=fresh / "specs" / spec_path.name,
+               record_dir="sites")
+    produced = sorted(p.relative_to(fresh) for p in fresh.rglob("*") if p.is_file())
+    committed = sorted(p.relative_to(CATALOG) for p in (CATALOG / "data" / site).iterdir())
+    assert sorted(p for p in produced if p.parts[0] == "data") == committed
+    for relative in produced:
+        assert (CATALOG / relative).read_bytes() == (fresh / relative).read_bytes(), f"{relative} differs"
+
+
+@pytest.mark.parametrize("site", SITES)
+def test_references_have_truth_and_mosaic_with_probes(site: str):
+    rec = record(site)
+    kinds = {ref.kind for ref in rec.references}
+    assert kinds == {"truth", "mosaic"}
+    for ref in rec.references:
+        assert ref.measure.method == "probe" and ref.measure.frame in rec.station_index()
+        assert ref.measure.repeats >= 5
+    assert [t.station for t in rec.truth] == [s.station for s in rec.scans]
+    assert rec.simulation == f"specs/{site}.yaml"
+
+
+def test_data_is_small():
+    sizes = [p.stat().st_size for p in (CATALOG / "data").rglob("*.npz")]
+    assert max(sizes) < 60_000
+    assert sum(p.stat().st_size for p in (CATALOG / "data").rglob("*") if p.is_file()) < 5_000_000
+
+
+def test_pool_is_the_papers_pool():
+    rec = record("lair-pool")
+    assert len(rec.scans) == 4
+    values = {(r.name, r.kind): r.value_m for r in rec.references}
+    assert values[("width", "truth")] == 3.61 and values[("length", "truth")] == 7.21
+    rings = truth("lair-pool")["levels"][0]["rings"][0]
+    xs, ys = zip(*rings)
+    assert (max(xs) - min(xs), max(ys) - min(ys)) == pytest.approx((7.21, 3.61))
+
+
+def test_pool_scans_segment_to_the_walls():
+    """The paper's segmentation puts most beams within one bin of the true wall (committed files)."""
+    rec = record("lair-pool")
+    doc = truth("lair-pool")
+    ring = np.asarray(doc["levels"][0]["rings"][0])
+    from cistern_archive.sonar.geometry import ray_cast
+
+    for ref, station in zip(rec.scans, doc["stations"]):
+        scan = read_scan(CATALOG / ref.file)
+        true_yaw = math.radians(station["yaw_deg"])
+        expected, _ = ray_cast(np.array([station["x_m"], station["y_m"]]), true_yaw + scan.bearings_rad, [ring])
+        ranges = segment(scan, Segmentation(method="paper")).ranges_m
+        assert np.mean(np.abs(ranges - expected) <= scan.bin_size_m) > 0.7
+
+
+def test_mdina_end_scans_barely_overlap():
+    doc = truth("mdina-site-8")
+    rings = [np.asarray(r) for r in doc["levels"][0]["rings"]]
+    pos = {s["station"]: np.array([s["x_m"], s["y_m"]]) for s in doc["stations"]}
+    names = [s["station"] for s in doc["stations"]]
+    overlaps = {(a, b): overlap_fraction(pos[a], pos[b], rings, 10.0) for a, b in zip(names, names[1:])}
+    assert overlaps[("a3", "b1")] < 0.3
+    assert all(v >= 0.7 for pair, v in overlaps.items() if pair != ("a3", "b1"))
+
+
+def test_bell_is_scanned_at_three_depths_with_changing_walls():
+    rec = record("bell-cistern")
+    depths = sorted({round(s.depth_m) for s in rec.scans})
+    assert len(depths) == 3
+    per_depth = [sum(1 for s in rec.scans if round(s.depth_m) == d) for d in depths]
+    assert min(per_depth) >= 2
+    levels = truth("bell-cistern")["levels"]
+    spans = [np.ptp(np.asarray(level["rings"][0])[:, 0]) for level in levels]
+    assert len(levels) >= 3 and spans[0] < spans[-1] / 3
+
+
+def test_gallery_is_long_with_many_stations():
+    rec = record("water-gallery")
+    assert len(rec.scans) >= 12
+    xy = np.array([[t.x_m, t.y_m] for t in rec.truth])
+    assert np.sum(np.hypot(*np.diff(xy, axis=0).T)) >= 25.0
+    ring = np.asarray(truth("water-gallery")["levels"][0]["rings"][0])
+    assert np.ptp(ring[:, 0]) >= 30.0

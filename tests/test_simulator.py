@@ -1,0 +1,139 @@
+"""The sonar simulator: determinism, geometry against the truth, the effects it models."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cistern_archive.catalog.models import Segmentation
+from cistern_archive.sonar.geometry import contains, interpolate_slice, overlap_fraction, ray_cast
+from cistern_archive.sonar.segmentation import segment
+from cistern_archive.sonar.simulation_output import probe_lengths
+from cistern_archive.sonar.simulator import TruePose, beam_bearings, simulate_scan, simulate_site
+from cistern_archive.sonar.simulator_spec import (
+    EffectsSpec,
+    LevelSpec,
+    RingSpec,
+    RouteSpec,
+    SimulationSpec,
+    SiteSpec,
+    SonarSpec,
+    StationSpec,
+    load_spec,
+)
+
+CATALOG = Path(__file__).resolve().parents[1] / "catalog"
+BOX = [np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]])]
+SONAR = SonarSpec(range_m=8.0, bins=200, step_deg=1.8)
+
+
+def fraction_within_one_bin(sim, settings: Segmentation) -> float:
+    ranges = segment(sim.scan, settings).ranges_m
+    truth = sim.truth_ranges_m
+    seen = np.isfinite(truth)
+    return float(np.mean(np.abs(ranges[seen] - truth[seen]) <= sim.scan.bin_size_m))
+
+
+def test_ray_cast_box():
+    ranges, cosines = ray_cast(np.array([2.0, 1.0]), np.array([0.0, math.pi / 2, math.pi, -math.pi / 2]), BOX)
+    np.testing.assert_allclose(ranges, [4.0, 3.0, 2.0, 1.0])
+    np.testing.assert_allclose(cosines, 1.0)
+    r, c = ray_cast(np.array([2.0, 1.0]), np.array([math.pi / 4]), BOX)
+    np.testing.assert_allclose(r, [3.0 * math.sqrt(2)])
+    np.testing.assert_allclose(c, [math.cos(math.pi / 4)])
+
+
+def test_same_seed_same_bytes_other_seed_differs():
+    pose = TruePose("a", 2.0, 1.5, 0.4, 1.0)
+    one = simulate_scan(BOX, pose, SONAR, EffectsSpec(), np.random.default_rng(7))
+    two = simulate_scan(BOX, pose, SONAR, EffectsSpec(), np.random.default_rng(7))
+    three = simulate_scan(BOX, pose, SONAR, EffectsSpec(), np.random.default_rng(8))
+    assert one.scan.intensities.tobytes() == two.scan.intensities.tobytes()
+    assert one.scan.yaw_rad == two.scan.yaw_rad
+    assert one.scan.intensities.tobytes() != three.scan.intensities.tobytes()
+
+
+def test_scan_shape_and_micron_like_settings():
+    sim = simulate_scan(BOX, TruePose("a", 2.0, 1.5, 0.0, 1.0), SONAR, EffectsSpec(), np.random.default_rng(0))
+    scan = sim.scan
+    assert scan.intensities.dtype == np.uint8 and scan.full_scale == 255
+    assert scan.intensities.shape == (200, 200)
+    assert scan.bin_size_m == pytest.approx(0.04)
+    assert scan.station == "a" and scan.settings["simulated"] is True
+    # Clockwise head: bearings decrease in the counter-clockwise sonar frame.
+    assert np.all(np.diff(np.unwrap(scan.bearings_rad)) < 0)
+    assert beam_bearings(SonarSpec(step_deg=0.9)).size == 400
+    # Most of the water is exact zeros after the AD mapping, as on a Tritech head.
+    assert np.mean(scan.intensities == 0) > 0.6
+
+
+def test_noise_free_sim_segments_to_the_walls():
+    pose = TruePose("a", 2.2, 1.4, 0.3, 1.0)
+    sim = simulate_scan(BOX, pose, SONAR, EffectsSpec.ideal(), np.random.default_rng(0))
+    assert math.isclose(sim.scan.yaw_rad, 0.3) and sim.scan.depth_m == 1.0
+    assert fraction_within_one_bin(sim, Segmentation(method="paper")) > 0.95
+    assert fraction_within_one_bin(sim, Segmentation(method="cfar")) > 0.95
+
+
+def test_effects_are_present():
+    pose = TruePose("a", 2.0, 2.0, 0.0, 1.0)
+    effects = EffectsSpec(multipath_fraction=0.5, spike_rate=0.2, compass_bias_deg=3.0, compass_sigma_deg=0.0)
+    sim = simulate_scan(BOX, pose, SONAR, effects, np.random.default_rng(3), water_depth_m=2.0)
+    scan = sim.scan
+    assert math.degrees(scan.yaw_rad) == pytest.approx(3.0)
+    # Own echo in the first bins, ghosts beyond the walls.
+    assert scan.intensities[:, 0].mean() > 50
+    beyond = scan.bin_centres_m[None, :] > sim.truth_ranges_m[:, None] + 0.3
+    assert np.mean(scan.intensities[beyond] > 100) > 0.001
+
+
+def test_paper_and_cfar_on_the_pool_site():
+    spec = load_spec(CATALOG / "specs" / "lair-pool.yaml")
+    site = simulate_site(spec)
+    assert len(site.scans) == 4
+    for sim in site.scans:
+        assert fraction_within_one_bin(sim, Segmentation(method="paper")) > 0.7
+        assert fraction_within_one_bin(sim, Segmentation(method="cfar", min_range_m=0.45)) > 0.8
+
+
+def test_route_respects_overlap_and_stays_in_the_water():
+    spec = SimulationSpec(
+        id="corridor", name="corridor",
+        site=SiteSpec(levels=[LevelSpec(depth_m=0.0, walls=RingSpec(rectangle=(0, 0, 20, 2)))]),
+        sonar=SonarSpec(range_m=6.0, bins=120, step_deg=3.6),
+        routes=[RouteSpec(waypoints=[(0.5, 1.0), (19.5, 1.0)], overlap=0.5, depths=[1.0])],
+        seed=4,
+    )
+    site = simulate_site(spec)
+    poses = [s.pose for s in site.scans]
+    assert len(poses) >= 3
+    rings = spec.site.slices()[0][1]
+    for a, b in zip(poses, poses[1:]):
+        assert overlap_fraction(np.array([a.x_m, a.y_m]), np.array([b.x_m, b.y_m]), rings, 6.0) >= 0.5
+    assert contains(rings, np.array([[p.x_m, p.y_m] for p in poses])).all()
+
+
+def test_station_outside_the_walls_is_refused():
+    spec = SimulationSpec(
+        id="bad", name="bad",
+        site=SiteSpec(levels=[LevelSpec(depth_m=0.0, walls=RingSpec(rectangle=(0, 0, 2, 2)))]),
+        stations=[StationSpec(name="out", x_m=5.0, y_m=1.0)],
+    )
+    with pytest.raises(ValueError, match="not in the water"):
+        simulate_site(spec)
+
+
+def test_depth_slices_interpolate():
+    levels = [(0.0, [np.array([[0, 0], [2, 0], [2, 2], [0, 2]], float)]),
+              (2.0, [np.array([[0, 0], [4, 0], [4, 4], [0, 4]], float)])]
+    mid = interpolate_slice(levels, 1.0)[0]
+    np.testing.assert_allclose(mid[2], [3.0, 3.0])
+    np.testing.assert_allclose(interpolate_slice(levels, 5.0)[0][2], [4.0, 4.0])
+
+
+def test_probe_lengths_of_a_rectangle():
+    lengths = probe_lengths(BOX, (3.0, 2.0), 90.0, 5, 0.5)
+    np.testing.assert_allclose(lengths, 4.0)
