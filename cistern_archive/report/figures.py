@@ -78,6 +78,19 @@ def _draw_grid(ax, grid: EvidenceGrid) -> None:
     ax.set_aspect("equal")
 
 
+def _map_canvas(grid: EvidenceGrid | None, dpi: int) -> Figure:
+    """A figure whose plot area has the grid's aspect ratio, with room on the right for the legend."""
+    aspect = 1.0
+    if grid is not None:
+        x0, x1, y0, y1 = grid.extent_m
+        aspect = (y1 - y0) / max(x1 - x0, 1e-9)
+    plot_h = 5.0 if aspect >= 0.6 else 3.2
+    plot_w = float(np.clip(plot_h / aspect, 2.5, 7.5))
+    width, height = plot_w + 0.9 + 1.9, plot_h + 0.9
+    return _figure(width, height, dpi, left=0.9 / width, right=(0.9 + plot_w) / width, bottom=0.55 / height,
+                   top=1 - 0.35 / height)
+
+
 def map_figure(
     path: Path,
     grid: EvidenceGrid | None,
@@ -92,7 +105,7 @@ def map_figure(
     Links join placed stations: solid green for converged matches, dashed magenta for the others, the
     width growing with the match weight (relative to the largest weight of the site).
     """
-    fig = _figure(7.2, 6.0, dpi, left=0.1, right=0.72, bottom=0.09, top=0.93)
+    fig = _map_canvas(grid, dpi)
     ax = fig.add_subplot()
     if grid is not None:
         _draw_grid(ax, grid)
@@ -184,7 +197,6 @@ def pair_figure(
         if r_c is not None:
             twin.axhline(r_c, color="#b2182b", ls=":", lw=1.2, label="r_c")
         twin.set_ylabel("std average (m)", color="#b2182b")
-        twin.set_yscale("log")
         lines = left.get_lines() + twin.get_lines()
         left.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="center right")
         left.set_xlabel("iteration")
@@ -333,7 +345,7 @@ def thumbnail(path: Path, grid: EvidenceGrid, poses: Poses | None, *, width_px: 
               interpolation="nearest")
     if poses is not None and poses.placed.any():
         xy = poses.xy_m[poses.placed]
-        ax.scatter(xy[:, 0], xy[:, 1], s=14, c="#2166ac", edgecolors="white", linewidths=0.6)
+        ax.scatter(xy[:, 0], xy[:, 1], s=36, c="#2166ac", edgecolors="white", linewidths=0.8)
     ax.set_aspect("equal")
     ax.set_axis_off()
     fig.set_facecolor("white")

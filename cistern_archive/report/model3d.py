@@ -33,17 +33,20 @@ class View:
     key: str
     title: str
     alt: str
+    caption: str
 
 
 VIEWS = (
-    View("top", "Top view", "The 3D model seen from above, walls coloured by depth"),
-    View("oblique-ne", "Oblique view from the north-east", "The 3D model seen obliquely from the north-east"),
-    View("oblique-sw", "Oblique view from the south-west", "The 3D model seen obliquely from the south-west"),
-    View(
-        "section",
-        "Vertical section",
-        "The 3D model cut by a vertical plane through its centre along its longer axis, seen from the side",
-    ),
+    View("top", "Top view", "The 3D model seen from above, walls coloured by depth",
+         "Plan view from above, north up, orthographic: the scale bar holds everywhere."),
+    View("oblique-ne", "Oblique view from the north-east", "The 3D model seen obliquely from the north-east",
+         "Perspective view from above the north-east corner; the scale bar lies on the floor in front."),
+    View("oblique-sw", "Oblique view from the south-west", "The 3D model seen obliquely from the south-west",
+         "Perspective view from above the south-west corner; the scale bar lies on the floor in front."),
+    View("section", "Vertical section",
+         "The 3D model cut by a vertical plane through its centre along its longer axis, seen from the side",
+         "The far half of the model behind a vertical cut along its longer axis, orthographic, seen from "
+         "the side: the wall profile with depth."),
 )
 
 
@@ -186,7 +189,7 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
         plotter.set_background("white")
         style = dict(scalars="depth_m", cmap=COLORMAP, clim=depth_range, smooth_shading=True, specular=0.2)
         bar = dict(title="Depth (m)", color="black", vertical=True, n_labels=5, fmt="%.1f", position_x=0.86,
-                   position_y=0.12, width=0.07, height=0.76, title_font_size=16, label_font_size=14)
+                   position_y=0.12, width=0.07, height=0.76, title_font_size=22, label_font_size=18)
         whole = plotter.add_mesh(mesh, scalar_bar_args=bar, **style)
         cut = plotter.add_mesh(section, show_scalar_bar=False, **style)
         for view in VIEWS:

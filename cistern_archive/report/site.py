@@ -244,8 +244,7 @@ def build_model(build: SiteBuild, site_dir: Path, config: ReportConfig) -> Model
         return ModelOutcome(files=files, note=note, missing=f"3D views not rendered: {reason}. The mesh is still "
                                                             "available under Downloads.")
     rendered = model3d.render_views(mesh, site_dir, config, depth_range=depth_range)
-    views = [fig.FigureFile(f"model-{v.key}", rendered[v.key], v.title, v.alt,
-                            f"{v.title}; colour is depth below the surface (colour bar, metres).")
+    views = [fig.FigureFile(f"model-{v.key}", rendered[v.key], v.title, v.alt, v.caption)
              for v in model3d.VIEWS if v.key in rendered]
     files.update({f"render-{v.key}": rendered[v.key] for v in model3d.VIEWS if v.key in rendered})
     return ModelOutcome(views=views, files=files, note=note)
@@ -341,7 +340,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "placed_count": sum(1 for s in result.scans if s.placed),
         "reference_label": _label(labels, reference) if reference is not None and reference >= 0 else "",
         "dimension_stats": _stat_rows(result.dimension_stats),
-        "total_time": f"{total:.2f} s over {len(result.timings_s)} stages" if result.timings_s else "",
+        "total_time": f"{total:.2f} s in {len(result.timings_s)} stages" if result.timings_s else "",
         "figures": figures,
         "views": [views[id(f)] for f in model.views],
         "model_note": model.note,

@@ -70,6 +70,18 @@ def polar_to_cartesian(
     return image, extent
 
 
+def display_levels(scan: Scan, contrast: str = "auto") -> np.ndarray:
+    """Intensities scaled to 0..1 for display (see :func:`fan_png`)."""
+    values = scan.normalised()
+    if contrast == "full-scale":
+        return values
+    if contrast != "auto":
+        raise ValueError(f"contrast must be 'auto' or 'full-scale', got {contrast!r}")
+    nonzero = values[values > 0]
+    top = float(np.percentile(nonzero, 99.5)) if nonzero.size else 1.0
+    return np.clip(values / max(top, 1e-6), 0.0, 1.0)
+
+
 def _render(images: list[tuple[str, np.ndarray]], extent: float, overlays: list[np.ndarray | None],
             suptitle: str, dpi: int) -> bytes:
     fig = Figure(figsize=(4.2 * len(images), 4.4), dpi=dpi)
@@ -109,6 +121,7 @@ def fan_png(
     title: str | None = None,
     pixels: int = 360,
     dpi: int = 100,
+    contrast: str = "auto",
 ) -> bytes:
     """A PNG of the scan's fan: the raw intensities, and beside them the segmented image if given.
 
@@ -124,13 +137,16 @@ def fan_png(
     title : str, optional
         Defaults to the station label and sonar model.
     pixels, dpi : int
+    contrast : {'auto', 'full-scale'}
+        ``full-scale`` maps 0..``scan.full_scale`` to the colour map; ``auto`` maps 0 .. the 99.5th
+        percentile of the non-zero intensities (weak real recordings stay visible).
 
     Returns
     -------
     bytes
         A PNG without time or software metadata.
     """
-    raw, extent = polar_to_cartesian(scan.bearings_rad, scan.normalised(), scan.bin_size_m,
+    raw, extent = polar_to_cartesian(scan.bearings_rad, display_levels(scan, contrast), scan.bin_size_m,
                                      scan.start_range_m, pixels=pixels)
     panels = [("raw intensities", raw)]
     overlays: list[np.ndarray | None] = [None]

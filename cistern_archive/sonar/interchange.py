@@ -100,7 +100,7 @@ def read_scan(path: str | os.PathLike) -> Scan:
     """
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as data:
             missing = {"bearings_rad", "intensities", "metadata"} - set(data.files)
             if missing:
                 raise ReaderError(str(path), f"not a cistern-archive scan: missing arrays {sorted(missing)}")

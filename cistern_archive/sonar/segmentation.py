@@ -18,16 +18,18 @@ Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
 ``cfar``
     A range-adaptive alternative that targets the failure modes of the paper's rule on real scans:
 
-    1. bins closer than ``min_range_m`` are blanked (the vehicle's own echo and transducer ring-down);
-    2. each beam is smoothed with a 3-bin moving average, so an isolated one-bin spike loses two thirds
+    1. each beam is smoothed with a 3-bin moving average, so an isolated one-bin spike loses two thirds
        of its height while a wall echo, which spans the pulse length, keeps most of it;
-    3. the smoothed image is normalised to 0..255 by its own maximum (robust to a single spike, unlike
-       the raw maximum);
-    4. a cell-averaging CFAR test along the beam: a bin is a detection when it exceeds both the absolute
+    2. the smoothed image is normalised to 0..255 by its maximum beyond ``min_range_m`` (robust to a
+       single spike, unlike the raw maximum, and blind to the vehicle's own echo);
+    3. a cell-averaging CFAR test along the beam: a bin is a detection when it exceeds both the absolute
        ``threshold`` and ``CFAR_SCALE`` times the mean of the ``CFAR_TRAIN`` leading training bins
        (before ``CFAR_GUARD`` guard bins), i.e. it stands out from the water in front of it; the
        training window is the leading one because the space in front of the first wall is water, while
        the space behind it holds multipath and reverberation;
+    4. detections closer than ``min_range_m`` are dropped (the vehicle's own echo and the transducer's
+       ring-down); the training cells still see those bins, so the decaying near field does not pass
+       the test just beyond ``min_range_m``;
     5. among the detections of a beam the **first** one whose peak reaches ``FIRST_RATIO`` of the beam's
        strongest detection is the wall: later, possibly stronger, echoes are multipath ghosts (the
        direct path is the shortest);
@@ -134,21 +136,25 @@ def _leading_noise(smooth: np.ndarray, train: int, guard: int) -> np.ndarray:
 def cfar_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Detection mask and normalised smoothed image of the ``cfar`` method (steps 1-4).
 
+    The training cells see the unblanked beam, so the decaying tail of the near field in front of a bin
+    raises that bin's noise estimate instead of the blanked zeros lowering it.
+
     Returns
     -------
     detections : ndarray of bool, shape (A, B)
     smooth : ndarray of float64, shape (A, B)
-        The smoothed image normalised to 0..255.
+        The smoothed image normalised to 0..255 by its maximum beyond ``min_range_m``.
     """
-    values = _blank_near(scan, min_range_m)
+    values = _blank_near(scan, 0.0)
     smooth = _moving_average3(values)
-    peak = float(smooth.max()) if smooth.size else 0.0
+    far = scan.bin_centres_m >= min_range_m
+    peak = float(smooth[:, far].max()) if smooth[:, far].size else 0.0
     if peak <= 0:
-        return np.zeros(smooth.shape, dtype=bool), smooth
+        return np.zeros(smooth.shape, dtype=bool), np.zeros_like(smooth)
     smooth *= PAPER_SCALE / peak
     noise = _leading_noise(smooth, CFAR_TRAIN, CFAR_GUARD)
-    detections = (smooth > threshold) & (smooth > CFAR_SCALE * noise)
-    return detections, smooth
+    detections = (smooth > threshold) & (smooth > CFAR_SCALE * noise) & far[None, :]
+    return detections, np.where(far[None, :], smooth, 0.0)
 
 
 def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarray:

@@ -13,7 +13,9 @@ The model of one stationary 360° scan (all levels in dB re an arbitrary source 
   integrated over each bin (**bin quantisation**).
 * **Time-varying gain**: ``+ n_t log10 max(r, r_min) + 2 a_t r``; ``n_t`` and ``a_t`` need not equal
   ``n_s`` and ``a`` (by default far walls come back a few dB weaker, as on real heads).
-* **Receiver noise** is added before the TVG, so it grows with range after it; **floor and surface
+* **Receiver noise** is added before the TVG, so it grows with range after it; **water-column
+  backscatter** is a constant level after the TVG (volume reverberation, roughly compensated by it);
+  **near-field reverberation** decays exponentially from the head; **floor and surface
   reverberation** enters through the vertical lobe beyond the slant range where the lobe's edge meets the
   floor or the surface.
 * **Speckle**: every bin's echo and reverberation power is multiplied by a unit-mean gamma variate with
@@ -164,10 +166,12 @@ def _ghosts(
 
 
 def _self_echo(bearings: np.ndarray, centres: np.ndarray, effects: EffectsSpec, pulse_m: float) -> np.ndarray:
-    """Post-TVG power of the ring-down and the vehicle's body, shape (A, B)."""
+    """Post-TVG power of the ring-down, the near-field reverberation and the vehicle's body, (A, B)."""
     ring = np.zeros(centres.shape)
     if effects.self_echo_range_m > 0:
-        ring = _db_to_power(effects.self_echo_db) * np.exp(-centres / effects.self_echo_range_m)
+        ring = ring + _db_to_power(effects.self_echo_db) * np.exp(-centres / effects.self_echo_range_m)
+    if effects.near_field_range_m > 0:
+        ring = ring + _db_to_power(effects.near_field_db) * np.exp(-centres / effects.near_field_range_m)
     out = np.broadcast_to(ring, (bearings.size, centres.size)).copy()
     centre, width = (math.radians(v) for v in effects.vehicle_sector_deg)
     delta = np.abs(np.asarray(wrap_angle(bearings - centre)))
@@ -249,7 +253,8 @@ def simulate_scan(
     signal += _reverberation(centres, axial_r, pose.depth_m, water_depth_m, sonar, effects)
     if effects.speckle_looks > 0:
         signal *= rng.gamma(effects.speckle_looks, 1.0 / effects.speckle_looks, size=signal.shape)
-    noise = _db_to_power(effects.noise_db) * rng.exponential(1.0, size=signal.shape) * tvg[None, :]
+    noise_power = _db_to_power(effects.noise_db) * tvg + _db_to_power(effects.background_db)
+    noise = noise_power[None, :] * rng.exponential(1.0, size=signal.shape)
     level_db = 10.0 * np.log10(signal + noise + 1e-30)
     counts = np.floor(FULL_SCALE * (level_db - sonar.ad_low_db) / sonar.ad_span_db)
     intensities = np.clip(counts, 0, FULL_SCALE).astype(np.uint8)

@@ -137,8 +137,8 @@ class SonarSpec(_Strict):
     vertical_beam_width_deg: float = Field(default=35.0, gt=0, lt=90)
     pulse_length_m: float = Field(default=0.04, gt=0, description="c * tau / 2")
     sub_rays: int = Field(default=9, ge=1, le=63, description="rays across the beam pattern")
-    ad_low_db: float = Field(default=-28.0, description="level mapped to intensity 0 (after TVG)")
-    ad_span_db: float = Field(default=32.0, gt=0, description="level span mapped to 0..255")
+    ad_low_db: float = Field(default=-32.0, description="level mapped to intensity 0 (after TVG)")
+    ad_span_db: float = Field(default=40.0, gt=0, description="level span mapped to 0..255")
     spreading_exponent: float = Field(default=40.0, ge=0, description="two-way spreading, n log10 r")
     absorption_db_per_m: float = Field(default=0.25, ge=0, description="one-way, at the sonar's frequency")
     tvg_exponent: float = Field(default=35.0, ge=0, description="time-varying gain n log10 r")
@@ -152,12 +152,15 @@ class EffectsSpec(_Strict):
     wall_roughness: float = Field(default=0.03, ge=0, description="diffuse floor of the cos^2 backscatter")
     speckle_looks: float = Field(default=3.0, ge=0, description="gamma speckle shape; 0 = no speckle")
     noise_db: float = Field(default=-63.0, description="receiver noise before TVG, at 1 m equivalent")
+    background_db: float = Field(default=-33.0, description="water-column backscatter after TVG")
     floor_db: float = Field(default=-24.0, description="floor/surface reverberation through the vertical lobe")
     multipath_fraction: float = Field(default=0.06, ge=0, le=1)
     multipath_extra_m: tuple[float, float] = (0.3, 2.0)
     multipath_level_db: tuple[float, float] = (-9.0, 2.0)
-    self_echo_db: float = Field(default=-12.0, description="ring-down level at zero range (after TVG)")
-    self_echo_range_m: float = Field(default=0.06, ge=0, description="e-folding length of the ring-down")
+    self_echo_db: float = Field(default=-3.0, description="ring-down level at zero range (after TVG)")
+    self_echo_range_m: float = Field(default=0.05, ge=0, description="e-folding length of the ring-down")
+    near_field_db: float = Field(default=-14.0, description="near-field reverberation at zero range")
+    near_field_range_m: float = Field(default=0.35, ge=0, description="its e-folding length")
     vehicle_sector_deg: tuple[float, float] = Field(default=(180.0, 40.0), description="centre, width")
     vehicle_echo_range_m: tuple[float, float] = (0.22, 0.34)
     vehicle_echo_db: float = Field(default=-6.0)
@@ -170,8 +173,8 @@ class EffectsSpec(_Strict):
     def ideal(cls) -> "EffectsSpec":
         """No imperfections: a noise-free simulation of the same geometry."""
         return cls(
-            wall_roughness=0.03, speckle_looks=0, noise_db=-200, floor_db=-200, multipath_fraction=0,
-            self_echo_db=-200, vehicle_echo_db=-200, spike_rate=0, compass_bias_deg=0,
+            wall_roughness=0.03, speckle_looks=0, noise_db=-200, background_db=-200, floor_db=-200,
+            multipath_fraction=0, self_echo_db=-200, near_field_db=-200, vehicle_echo_db=-200, spike_rate=0, compass_bias_deg=0,
             compass_sigma_deg=0, depth_sigma_m=0,
         )
 

@@ -254,7 +254,9 @@ class ReferenceModel:
         return assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, inlier_distance_m)
 
     def assess_pair(self, moving: RangeScan, pose: np.ndarray, limits: ConvergenceThresholds) -> AlignmentQuality:
-        """Fit of the moving scan placed by ``pose``, with the free-space violation ratio both ways."""
+        """Fit of the moving scan placed by ``pose``, checked both ways: the inlier ratio is the smaller of
+        the moving-onto-reference and reference-onto-moving shares, the free-space violation ratio the
+        larger."""
         src = scan_points(moving)
         moved = transform(src, pose)
         q = self.assess(moved, limits.inlier_distance_m)
@@ -262,6 +264,13 @@ class ReferenceModel:
         back = transform(self.points, inverse(pose))
         bad2, n2 = FreeSpace(moving).violations(back, limits.free_space_margin_m)
         ratio = max(bad1 / n1 if n1 else 0.0, bad2 / n2 if n2 else 0.0)
+        if len(src) >= 3:  # the same fit seen from the moving scan: the smaller inlier share counts
+            mov_tree = cKDTree(src)
+            rq = assess_alignment(src, mov_tree, estimate_normals(src, mov_tree), back, float(moving.max_range_m),
+                                  limits.inlier_distance_m)
+            if rq.inlier_ratio < q.inlier_ratio:
+                q = AlignmentQuality(min(q.inliers, rq.inliers), rq.candidates, q.n_points, q.rms_m,
+                                     min(q.constraint, rq.constraint))
         return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, ratio)
 
 

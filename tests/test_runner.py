@@ -1,0 +1,96 @@
+"""The pipeline runner on the bundled pool, and its failure capture."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cistern_archive.catalog.validate import validate_catalog, validate_record
+from cistern_archive.evaluation import align_rigid_2d, position_errors
+from cistern_archive.pipeline.runner import build_site, write_site_result
+
+
+@pytest.fixture(scope="module")
+def pool_build(bundled_catalog):
+    loaded = validate_record(bundled_catalog / "sites" / "lair-pool.yaml", bundled_catalog)
+    return build_site(loaded)
+
+
+def test_pool_builds_and_places_every_scan_near_truth(pool_build):
+    result = pool_build.result
+    assert result.status == "ok", result.failure
+    assert [s.placed for s in result.scans] == [True] * 4
+    errors = position_errors(result)
+    assert errors.shape == (4,)
+    assert errors.max() < 0.10, errors
+
+
+def test_rigid_alignment_recovers_a_rotated_translated_copy():
+    rng = np.random.default_rng(1)
+    points = rng.uniform(-5, 5, (6, 2))
+    angle = np.radians(7.0)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    moved = points @ rotation.T + [1.5, -2.0]
+    r, t = align_rigid_2d(points, moved)
+    np.testing.assert_allclose(r, rotation, atol=1e-12)
+    np.testing.assert_allclose(t, [1.5, -2.0], atol=1e-12)
+
+
+def test_pool_result_has_the_documented_fields(pool_build, tmp_path):
+    path = write_site_result(pool_build, tmp_path)
+    data = json.loads(path.read_text())
+    for key in ("site_id", "status", "scans", "pairs", "dimensions", "provenance", "timings_s"):
+        assert key in data
+    assert {"id", "x_m", "y_m", "yaw_rad", "depth_m", "placed"} <= set(data["scans"][0])
+    assert {"i", "j", "dx_m", "dy_m", "weight", "converged", "iterations"} <= set(data["pairs"][0])
+    assert {"name", "map_m", "reference_m", "reference_kind", "diff_m"} <= set(data["dimensions"][0])
+    plugins = {p["stage"]: p for p in data["provenance"]["plugins"]}
+    assert plugins["matcher"]["plugin"] == "pf-pairwise"
+    assert plugins["matcher"]["distribution"] == "cistern-archive"
+    assert "n_particles" in plugins["matcher"]["params"]
+    assert data["provenance"]["seeds"]["site"] == pool_build.record.seed
+    assert set(data["timings_s"]) >= {"load", "segment", "match", "localize", "map", "compare", "total"}
+    assert (tmp_path / "record.json").is_file()
+    widths = [d for d in data["dimensions"] if d["name"] == "width" and d["reference_kind"] == "truth"]
+    assert abs(widths[0]["diff_m"]) < 0.15
+
+
+def test_the_same_record_builds_the_same_result(pool_build, bundled_catalog):
+    loaded = validate_record(bundled_catalog / "sites" / "lair-pool.yaml", bundled_catalog)
+    again = build_site(loaded).result
+    strip = lambda r: r.model_dump(exclude={"timings_s", "pairs"})  # noqa: E731  (times differ)
+    assert strip(again) == strip(pool_build.result)
+    assert [(p.dx_m, p.dy_m, p.converged) for p in again.pairs] == [
+        (p.dx_m, p.dy_m, p.converged) for p in pool_build.result.pairs
+    ]
+
+
+def copy_pool(bundled_catalog: Path, root: Path) -> Path:
+    shutil.copytree(bundled_catalog / "data" / "lair-pool", root / "data" / "lair-pool")
+    (root / "sites").mkdir(parents=True)
+    shutil.copy(bundled_catalog / "sites" / "lair-pool.yaml", root / "sites" / "lair-pool.yaml")
+    (root / "specs").mkdir()
+    shutil.copy(bundled_catalog / "specs" / "lair-pool.yaml", root / "specs" / "lair-pool.yaml")
+    return root / "sites" / "lair-pool.yaml"
+
+
+def test_a_corrupt_scan_fails_its_site_with_stage_and_input(bundled_catalog, tmp_path):
+    record_path = copy_pool(bundled_catalog, tmp_path)
+    (tmp_path / "data" / "lair-pool" / "s3.npz").write_bytes(b"PK\x03\x04 this is not a zip")
+    loaded = validate_record(record_path, tmp_path)
+    result = build_site(loaded).result
+    assert result.status == "failed"
+    assert result.failure.stage == "load"
+    assert result.failure.input == "data/lair-pool/s3.npz"
+    assert "s3.npz" in result.failure.error
+    assert [s.placed for s in result.scans] == [False] * 4
+
+
+def test_validate_finds_the_bundled_catalog_clean(bundled_catalog):
+    report = validate_catalog(bundled_catalog)
+    assert report.ok, report.problems
+    assert {r.record.id for r in report.records} >= {"lair-pool"}

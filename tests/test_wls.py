@@ -1,0 +1,132 @@
+"""Weighted-least-squares scan localisation (paper eqs. 7–10, Table III)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from cistern_archive.pipeline.contracts import Localizer, MatchResult
+from cistern_archive.pipeline.registry import Registry
+from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.wls import WLSLocalizer, WLSParams, combine, converged_measurements, estimates
+
+TRUTH = np.array([[0.0, 0.0], [1.5, 0.2], [3.1, -0.1], [4.4, 0.5]])
+
+
+def scans(n: int) -> list[RangeScan]:
+    bearings = np.linspace(0, 2 * math.pi, 8, endpoint=False)
+    return [
+        RangeScan(bearings_rad=bearings, ranges_m=np.ones(8), yaw_rad=0.1 * k, depth_m=1.0, max_range_m=10.0,
+                  bin_size_m=0.05, beam_width_rad=0.05, station=f"s{k}")
+        for k in range(n)
+    ]
+
+
+def m(i, j, d=None, *, w=0.5, ok=True, dyaw=0.0, reason="") -> MatchResult:
+    d = TRUTH[j] - TRUTH[i] if d is None else np.asarray(d, float)
+    return MatchResult(i=i, j=j, dx_m=float(d[0]), dy_m=float(d[1]), dyaw_rad=dyaw, weight=w, converged=ok,
+                       iterations=10, seconds=0.01, reason=reason if not ok else "")
+
+
+def all_pairs(n: int = 4, **kw) -> list[MatchResult]:
+    return [m(i, j, **kw) for i, j in WLSLocalizer().pairs(n, WLSParams())]
+
+
+def test_protocol_and_registry():
+    assert isinstance(WLSLocalizer(), Localizer)
+    assert Registry().load("localizer", "wls").instance.name == "wls"
+
+
+def test_pairs_neighbours_both_ways_then_third_scan():
+    pairs = WLSLocalizer().pairs(4, WLSParams())
+    assert pairs[:6] == [(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)]
+    assert set(pairs[6:]) == {(0, 2), (2, 0), (1, 3), (3, 1)}
+    assert WLSLocalizer().pairs(4, WLSParams(third_scan=False)) == pairs[:6]
+    assert WLSLocalizer().pairs(1, WLSParams()) == []
+
+
+def test_exact_matches_give_exact_poses():
+    poses = WLSLocalizer().localize(scans(4), all_pairs(), WLSParams())
+    assert poses.reference == 0 and poses.placed.all()
+    assert_allclose(poses.xy_m, TRUTH, atol=1e-12)
+    assert poses.reasons == ("", "", "", "")
+    assert_allclose(poses.yaw_rad, [0.0, 0.1, 0.2, 0.3])
+
+
+def test_four_estimates_and_eq10_weighted_mean():
+    """d_01 from z_01, -z_10, z_02 + z_21 and -(z_12 + z_20), weighted as documented."""
+    ms = [m(0, 1, [1.0, 0.0], w=1.0), m(1, 0, [-1.2, 0.0], w=0.5),
+          m(0, 2, [2.0, 0.0], w=1.0), m(2, 1, [-0.9, 0.0], w=1.0),
+          m(1, 2, [1.1, 0.0], w=1.0), m(2, 0, [-2.1, 0.0], w=1.0)]
+    z = converged_measurements(ms, 1e-3)
+    est = estimates(0, 1, z, 3)
+    assert len(est) == 4
+    values = [e[0][0] for e in est]
+    assert_allclose(values, [1.0, 1.2, 1.1, 1.0])
+    weights = np.array([1.0, 0.5, 0.5, 0.5])  # a chain of two weight-1 links has weight 1/2
+    assert_allclose([e[1] for e in est], weights)
+    mean, total = combine(0, 1, z, 3)
+    assert_allclose(mean[0], (weights * values).sum() / weights.sum())
+    assert total == pytest.approx(weights.sum())
+
+
+def test_reverse_only_pair_still_links():
+    ms = [m(1, 0), m(1, 2), m(2, 1), m(2, 3)]
+    poses = WLSLocalizer().localize(scans(4), ms, WLSParams(third_scan=False))
+    assert poses.placed.all()
+    assert_allclose(poses.xy_m, TRUTH, atol=1e-12)
+
+
+def test_reference_is_first_scan_that_converges():
+    ms = [m(0, 1, ok=False, reason="no overlap"), m(1, 0, ok=False, reason="no overlap"),
+          m(1, 2), m(2, 1), m(2, 3), m(3, 2)]
+    poses = WLSLocalizer().localize(scans(4), ms, WLSParams(third_scan=False))
+    assert poses.reference == 1
+    assert not poses.placed[0] and poses.placed[1:].all()
+    assert_allclose(poses.xy_m[1:], TRUTH[1:] - TRUTH[1], atol=1e-12)
+    assert np.isnan(poses.xy_m[0]).all()
+    assert "no converged path to reference scan 1" in poses.reasons[0]
+    assert "no overlap" in poses.reasons[0]
+
+
+def test_broken_chain_leaves_the_rest_unplaced_but_global_bridges_it():
+    ms = [m(0, 1), m(1, 0), m(1, 2, ok=False, reason="spread"), m(2, 1, ok=False, reason="spread"),
+          m(2, 3), m(3, 2), m(1, 3), m(3, 1)]
+    chain = WLSLocalizer().localize(scans(4), ms, WLSParams(solve="chain"))
+    # the pseudo-measurement z_13 + z_32 still links 1 and 2 (eq. 7, n = 3)
+    assert chain.placed.all()
+    assert_allclose(chain.xy_m, TRUTH, atol=1e-12)
+    ms_no_pseudo = [x for x in ms if (x.i, x.j) not in {(1, 3), (3, 1)}]
+    broken = WLSLocalizer().localize(scans(4), ms_no_pseudo, WLSParams(solve="chain"))
+    assert broken.placed.tolist() == [True, True, False, False]
+    assert "no converged path" in broken.reasons[2]
+
+
+def test_global_solve_averages_loop():
+    noisy = all_pairs()
+    noisy[0] = m(0, 1, TRUTH[1] + [0.1, 0.0])
+    chain = WLSLocalizer().localize(scans(4), noisy, WLSParams(solve="chain"))
+    glob = WLSLocalizer().localize(scans(4), noisy, WLSParams(solve="global"))
+    assert glob.placed.all()
+    assert np.abs(glob.xy_m - TRUTH).max() < np.abs(chain.xy_m - TRUTH).max() + 1e-12
+    assert np.abs(glob.xy_m - TRUTH).max() < 0.1
+
+
+def test_nothing_converged():
+    ms = [m(i, j, ok=False, reason="pure noise") for i, j in WLSLocalizer().pairs(3, WLSParams())]
+    poses = WLSLocalizer().localize(scans(3), ms, WLSParams())
+    assert poses.reference == -1 and not poses.placed.any()
+    assert all("no pair of scans converged" in r for r in poses.reasons)
+
+
+def test_nan_and_nonpositive_weights_are_handled():
+    ms = all_pairs()
+    ms[0] = m(0, 1, w=-0.2)
+    ms[1] = m(1, 0, [np.nan, 0.0])
+    ms[1] = MatchResult(**{**ms[1].__dict__, "converged": True})
+    poses = WLSLocalizer().localize(scans(4), ms, WLSParams())
+    assert poses.placed.all()
+    assert_allclose(poses.xy_m, TRUTH, atol=1e-9)
