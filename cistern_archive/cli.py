@@ -23,15 +23,20 @@ app = typer.Typer(
 )
 
 
-@app.callback()
-def _root(
-    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
-) -> None:
-    if version:
+def _print_version(value: bool) -> None:
+    if value:
         from cistern_archive import __version__
 
         typer.echo(__version__)
         raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True,
+                                 callback=_print_version),
+) -> None:
+    """Maps, 3D models and reports from stationary sonar scans of flooded archaeological sites."""
 
 
 def _register_commands() -> None:
@@ -51,7 +56,7 @@ _register_commands()
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps exceptions to the documented exit codes."""
     try:
-        app(args=argv, standalone_mode=False)
+        code = app(args=argv, standalone_mode=False)
     except KeyboardInterrupt:
         typer.echo("interrupted", err=True)
         sys.exit(EXIT_INTERRUPTED)
@@ -60,15 +65,14 @@ def main(argv: list[str] | None = None) -> None:
     except CisternError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(EXIT_USAGE)
-    except Exception as exc:  # click's usage errors and anything unexpected
-        import click
-
-        if isinstance(exc, click.exceptions.Exit):
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Abort):
+    except Exception as exc:  # usage errors of the command-line parser, and anything unexpected
+        names = {cls.__name__ for cls in type(exc).__mro__}
+        if "Exit" in names:
+            sys.exit(getattr(exc, "exit_code", 0))
+        if "Abort" in names:
             typer.echo("interrupted", err=True)
             sys.exit(EXIT_INTERRUPTED)
-        if isinstance(exc, click.ClickException):
+        if "ClickException" in names:
             exc.show()
             sys.exit(EXIT_USAGE)
         import traceback
@@ -76,4 +80,4 @@ def main(argv: list[str] | None = None) -> None:
         traceback.print_exc()
         typer.echo(f"internal error: {type(exc).__name__}: {exc}", err=True)
         sys.exit(EXIT_INTERNAL)
-    sys.exit(0)
+    sys.exit(code if isinstance(code, int) else 0)

@@ -29,13 +29,18 @@ def copy_catalog(template: Path, target: Path) -> Path:
     return target
 
 
+def _without_timings(value):
+    if isinstance(value, dict):
+        return {k: _without_timings(v) for k, v in value.items()
+                if k not in ("timings_s", "seconds") and not k.endswith("_seconds")}
+    if isinstance(value, list):
+        return [_without_timings(v) for v in value]
+    return value
+
+
 def comparable_result(path: Path) -> dict:
     """``result.json`` without wall-clock timings (which differ between runs and machines)."""
-    data = json.loads(path.read_text(encoding="utf-8"))
-    data.pop("timings_s", None)
-    for pair in data.get("pairs", []):
-        pair.pop("seconds", None)
-    return data
+    return _without_timings(json.loads(path.read_text(encoding="utf-8")))
 
 
 def report_is_complete(site_dir: Path) -> bool:

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from cistern_archive.catalog.loader import load_record
-from cistern_archive.catalog.models import Segmentation
 from cistern_archive.catalog.validate import validate_catalog
 from cistern_archive.sonar.geometry import overlap_fraction
 from cistern_archive.sonar.interchange import read_scan
@@ -66,7 +65,7 @@ def test_references_have_truth_and_mosaic_with_probes(site: str):
 
 def test_data_is_small():
     sizes = [p.stat().st_size for p in (CATALOG / "data").rglob("*.npz")]
-    assert max(sizes) < 60_000
+    assert max(sizes) < 64_000
     assert sum(p.stat().st_size for p in (CATALOG / "data").rglob("*") if p.is_file()) < 5_000_000
 
 
@@ -83,6 +82,7 @@ def test_pool_is_the_papers_pool():
 def test_pool_scans_segment_to_the_walls():
     """The paper's segmentation puts most beams within one bin of the true wall (committed files)."""
     rec = record("lair-pool")
+    assert rec.segmentation.method == "paper" and rec.segmentation.threshold == 50
     doc = truth("lair-pool")
     ring = np.asarray(doc["levels"][0]["rings"][0])
     from cistern_archive.sonar.geometry import ray_cast
@@ -91,7 +91,7 @@ def test_pool_scans_segment_to_the_walls():
         scan = read_scan(CATALOG / ref.file)
         true_yaw = math.radians(station["yaw_deg"])
         expected, _ = ray_cast(np.array([station["x_m"], station["y_m"]]), true_yaw + scan.bearings_rad, [ring])
-        ranges = segment(scan, Segmentation(method="paper")).ranges_m
+        ranges = segment(scan, rec.segmentation).ranges_m
         assert np.mean(np.abs(ranges - expected) <= scan.bin_size_m) > 0.7
 
 

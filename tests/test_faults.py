@@ -102,3 +102,111 @@ def test_recover_removes_unfinished_folders_and_restores_an_interrupted_swap(tmp
     assert (tmp_path / "cave" / "index.html").read_text() == "previous cave"
     assert (tmp_path / "well" / "index.html").read_text() == "current well"
     assert any("restored previous report of cave" in a for a in actions)
+
+
+# ------------------------------------------------------------------------- whole-rebuild faults
+from cistern_archive.archive import Archive, verify_archive  # noqa: E402
+from cistern_archive.service.rebuild import rebuild  # noqa: E402
+from service_helpers import CLI, FAST_REPORT, copy_catalog, make_catalog, report_is_complete  # noqa: E402
+
+SITES = ["cistern-000", "cistern-001"]
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory) -> Path:
+    return make_catalog(tmp_path_factory.mktemp("template") / "catalog")
+
+
+@pytest.fixture()
+def built(template, tmp_path) -> tuple[Path, Path]:
+    """A copied catalog and its reports, built once."""
+    catalog = copy_catalog(template, tmp_path / "catalog")
+    out = tmp_path / "site"
+    summary = rebuild(catalog, out, workers=2, report_config=FAST_REPORT)
+    assert [s.status for s in summary.sites] == ["ok", "ok"]
+    return catalog, out
+
+
+def _manifest(site_dir: Path) -> dict:
+    return json.loads((site_dir / "build.json").read_text())["files"]
+
+
+def _leftovers(out: Path) -> list[str]:
+    return sorted(p.name for p in out.iterdir() if p.name.startswith(".") and p.is_dir())
+
+
+def test_a_write_failure_leaves_the_previous_report(built, tmp_path):
+    catalog, out = built
+    before = _manifest(out / "cistern-000")
+    # A real write failure: the kernel refuses to grow any file past 12 kB (EFBIG), as on a full disk.
+    code = textwrap.dedent(f"""
+        import resource
+        resource.setrlimit(resource.RLIMIT_FSIZE, (12_000, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+        from cistern_archive.service.worker import SiteTask, run_site
+        task = SiteTask(site_id="cistern-000", record_path={str(catalog / "sites" / "cistern-000.yaml")!r},
+                        catalog_root={str(catalog)!r}, out={str(out)!r}, build_key="k", key_material={{}},
+                        run_id="r", report_config={FAST_REPORT!r})
+        print(run_site(task).model_dump_json())
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    outcome = json.loads(run.stdout.splitlines()[-1])
+    assert outcome["status"] == "failed" and "File too large" in outcome["error"]
+    assert _manifest(out / "cistern-000") == before and report_is_complete(out / "cistern-000")
+    assert _leftovers(out) == []
+    assert [s.status for s in rebuild(catalog, out, workers=1, report_config=FAST_REPORT).sites] == ["skipped"] * 2
+
+
+def test_a_second_concurrent_rebuild_is_refused_by_the_command(built):
+    catalog, out = built
+    with RebuildLock(out):
+        run = subprocess.run([*CLI, "rebuild", "--catalog", str(catalog), "--out", str(out)],
+                             capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2
+    assert "another rebuild is already writing" in run.stderr and f"pid {os.getpid()}" in run.stderr
+
+
+@pytest.mark.slow
+def test_kill_9_in_the_middle_of_a_rebuild_then_rebuild_is_consistent(built, tmp_path):
+    catalog, out = built
+    before = {site: _manifest(out / site) for site in SITES}
+    code = textwrap.dedent(f"""
+        from pathlib import Path
+        from cistern_archive.service.rebuild import rebuild
+        rebuild(Path({str(catalog)!r}), Path({str(out)!r}), workers=1, force=True, report_config={FAST_REPORT!r})
+    """)
+    victim = subprocess.Popen([sys.executable, "-c", code], start_new_session=True,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    log_dir = out / "logs"
+    try:
+        while time.monotonic() < deadline:  # kill while the second site is being written
+            logs = sorted(log_dir.iterdir())
+            if len(logs) == 2 and "site cistern-000: ok" in logs[-1].read_text() and _leftovers(out):
+                break
+            time.sleep(0.02)
+        else:
+            pytest.fail("the rebuild never reached its second site")
+    finally:
+        os.killpg(victim.pid, signal.SIGKILL)
+        victim.wait()
+    # Straight after the crash: every report is whole (the new one or the previous one), the lock stays.
+    assert (out / ".rebuild.lock").is_file()
+    for site in SITES:
+        assert report_is_complete(out / site)
+    assert _manifest(out / "cistern-001") == before["cistern-001"]
+
+    summary = rebuild(catalog, out, workers=2, report_config=FAST_REPORT)
+    assert summary.stale_lock is not None and summary.stale_lock["pid"] == victim.pid
+    assert any("removed unfinished .cistern-001.tmp-" in a for a in summary.recovered)
+    assert any("abandoned" in a for a in summary.recovered)
+    # cistern-000 was published by the killed run (skipped unless the sources changed meanwhile);
+    # cistern-001 kept its previous report, built with this process's code version.
+    assert summary.sites[0].status in ("skipped", "ok") and summary.sites[1].status == "skipped"
+    assert _leftovers(out) == [] and not (out / ".rebuild.lock").exists()
+    for site in SITES:
+        assert report_is_complete(out / site)
+    with Archive(tmp_path / ".archive") as archive:
+        assert verify_archive(archive).ok
+        assert archive.index.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert [r["status"] for r in archive.index.runs()] == ["ok", "abandoned", "ok"]

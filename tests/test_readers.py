@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import struct
 import tempfile
 from pathlib import Path
@@ -98,6 +99,15 @@ def test_corrupted_ping360_names_the_damage_and_keeps_the_rest():
 
 
 @pytest.mark.realdata
+def test_ping360_sector_is_centred_ahead():
+    scans = read_file(_data("ping360", "BIN__20240814-102841366.bin")).scans
+    sweep = scans[7]  # a 90° sector in 0.9° (1 gradian) steps, raw angles 150..250
+    assert sweep.n_beams == 100 and sweep.bin_size_m == pytest.approx(1500 * 2666 * 25e-9 / 2)
+    assert math.degrees(sweep.bearings_rad.min()) == pytest.approx(-45.0)
+    assert math.degrees(sweep.bearings_rad.max()) == pytest.approx(44.1)
+
+
+@pytest.mark.realdata
 def test_ping360_checksum_damage_mid_file_keeps_neighbours():
     path = _data("ping360", "BIN__20240814-102337673.bin")
     result = read_file(path)
@@ -156,6 +166,7 @@ def test_raw_capture_4bit_full_scale(tmp_path):
     assert scan.full_scale == 15 and scan.n_bins == 50 and scan.intensities.max() == 15
 
 
+@pytest.mark.realdata
 def test_raw_bin_file_is_told_apart_from_ping360(tmp_path):
     path = tmp_path / "capture.bin"
     path.write_bytes(_raw_stream(5))
@@ -182,6 +193,7 @@ def test_raw_capture_bad_records_are_warned_and_skipped(tmp_path):
     assert "bearing 7000" in text and "empty beam" in text and "ADInterval 0" in text and "truncated" in text
 
 
+@pytest.mark.realdata
 def test_v4log_truncated_and_corrupted_records(tmp_path):
     real = _data("seanet", "90degree_scan_target_moving_in.V4LOG").read_bytes()
     cut = tmp_path / "cut.V4LOG"
@@ -202,17 +214,21 @@ def test_v4log_truncated_and_corrupted_records(tmp_path):
         read_file(wrong)
 
 
+@pytest.mark.realdata
 def test_ping360_mid_file_damage_keeps_records_before_and_after(tmp_path):
     real = _data("ping360", "scenario__20210829-000220346-1.bin").read_bytes()
+    records = [m.start() for m in re.finditer(b"\x00\x00\x00\x18\x06\xf0", real)]  # time QStrings
     damaged = bytearray(real)
     damaged[100_000:100_040] = b"\xAA" * 40  # inside a chunk: breaks one message's checksum
-    damaged[150_000:150_004] = b"\xff\xff\xff\x00"  # a record header: breaks the record framing
+    length_at = records[150] + 4 + 24  # record 150's chunk length
+    damaged[length_at:length_at + 4] = b"\x7f\xff\xff\x00"
     path = tmp_path / "damaged.bin"
     path.write_bytes(bytes(damaged))
     result = read_file(path, "ping360")
     beams = sum(s.n_beams for s in result.scans)
-    assert 150 <= beams < 164
+    assert 160 <= beams < 164
     assert any("checksum" in w and "byte offset" in w for w in result.warnings)
+    assert any(f"record 150: byte offset {records[150]}: chunk length" in w for w in result.warnings)
     assert all("record" in w and "byte offset" in w for w in result.warnings)
 
 
@@ -336,3 +352,31 @@ def test_mutated_files_raise_only_reader_error(fmt, cut, flips, insert):
     at = cut % (len(data) + 1)
     data[at:at] = insert
     _read_only_reader_errors(fmt, bytes(data[: max(len(data) - cut // 4, 0)]))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("key", sorted(REAL), ids=lambda k: k[1])
+def test_real_scans_round_trip_through_the_interchange_format(key, tmp_path):
+    from cistern_archive.sonar.interchange import read_scan, write_scan
+
+    scan = read_file(_data(*key)).scans[-1]
+    back = read_scan(write_scan(scan, tmp_path / "scan.npz"))
+    np.testing.assert_array_equal(back.intensities, scan.intensities)
+    np.testing.assert_array_equal(back.bearings_rad, scan.bearings_rad)
+    assert back.settings == scan.settings and back.bin_size_m == scan.bin_size_m
+    assert back.full_scale == scan.full_scale and back.timestamp == pytest.approx(scan.timestamp, nan_ok=True)
+
+
+def test_marina_loader_names_bad_rows(tmp_path):
+    from cistern_archive.sonar import marina
+
+    path = tmp_path / "x_MTi.log"
+    path.write_text("% header\n1.0 0 0 10 0 0 0 0 0 0\n2.0 0 0 nan 0 0 0 0 0 0\n")
+    with pytest.raises(ReaderError, match="line 3: NaN"):
+        marina.load_mti(path)
+    path.write_text("1.0 0 0 10\n")
+    with pytest.raises(ReaderError, match="line 1: 4 fields"):
+        marina.load_mti(path)
+    path.write_text("1.0 0 0 350 0 0 0 0 0 0\n2.0 0 0 10 0 0 0 0 0 0\n")
+    heading = marina.mean_heading_deg(marina.load_mti(path), 0.0, 3.0)
+    assert (heading + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-9)  # circular mean of 350° and 10°

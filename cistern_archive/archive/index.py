@@ -168,6 +168,12 @@ class Index:
         self.db.execute("UPDATE runs SET finished_at = ?, status = ?, counts = ?, executor = COALESCE(?, executor) "
                         "WHERE id = ?", (utc_now(), status, json.dumps(counts, sort_keys=True), executor, run_id))
 
+    def abandon_runs(self, out: str, keep: str) -> int:
+        """Mark runs into ``out`` still ``running`` (their process died) as ``abandoned``; keep ``keep``."""
+        cursor = self.db.execute("UPDATE runs SET status = 'abandoned' WHERE out = ? AND status = 'running' "
+                                 "AND id != ?", (out, keep))
+        return cursor.rowcount
+
     def runs(self) -> list[sqlite3.Row]:
         return list(self.db.execute("SELECT * FROM runs ORDER BY started_at, id"))
 

@@ -16,8 +16,9 @@ class ReportConfig(BaseModel):
 
     dpi: int = Field(default=100, ge=50, le=300, description="resolution of the matplotlib figures")
     thumbnail_px: int = Field(default=240, ge=64, le=800, description="width of the index thumbnail")
-    max_pair_figures: int = Field(default=24, ge=0, description="pairs beyond this are listed but not drawn")
-    max_fan_figures: int = Field(default=12, ge=0, description="scans beyond this are listed but not drawn")
+    max_pair_figures: int = Field(default=48, ge=0, description="pairs beyond this are listed but not drawn")
+    pairs_per_figure: int = Field(default=12, ge=1, le=48, description="pairs per convergence / particle montage")
+    max_fan_figures: int = Field(default=24, ge=0, description="scans beyond this are listed but not drawn")
     # 3D model
     model: bool = Field(default=True, description="build, render and export the 3D model")
     window_px: tuple[int, int] = (800, 600)

@@ -164,115 +164,184 @@ def _thresholds(matcher_params: dict) -> tuple[float | None, float | None]:
             float(cell) if isinstance(cell, int | float) else None)
 
 
-def pair_figure(
+def _pair_title(ax, match: MatchResult, labels: Sequence[str]) -> None:
+    name_i, name_j = labels[match.i], labels[match.j]
+    suffix = "" if match.converged else " (not converged)"
+    ax.set_title(f"{name_j} in {name_i}{suffix}", fontsize=8, color=LINK_OK if match.converged else LINK_BAD)
+
+
+def _grid_axes(n: int, dpi: int, *, cols: int = 4, panel_in: float = 2.5):
+    rows = max(1, math.ceil(n / cols))
+    width, height = cols * panel_in + 0.6, rows * (panel_in * 0.92) + 0.3
+    fig = _figure(width, height, dpi, left=0.5 / width, right=1 - 0.35 / width, bottom=0.35 / height,
+                  top=1 - 0.3 / height, wspace=0.55, hspace=0.5)
+    axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
+    for ax in axes[n:]:
+        ax.set_axis_off()
+    return fig, axes[:n]
+
+
+def convergence_montage(
+    path: Path, matches: Sequence[MatchResult], labels: Sequence[str], *, matcher_params: dict, dpi: int
+) -> Figure:
+    """One small panel per pair: the weight average of eq. 6 (green, left axis) and the position-std
+    average of eq. 5 (red, right axis, metres) over the iterations, with τ_pw and r_c dotted."""
+    tau, r_c = _thresholds(matcher_params)
+    fig, axes = _grid_axes(len(matches), dpi)
+    for ax, match in zip(axes, matches):
+        _pair_title(ax, match, labels)
+        ax.tick_params(labelsize=6)
+        hist = match.history
+        if hist is None or not len(hist.weight_avg):
+            ax.text(0.5, 0.5, "no history", ha="center", va="center", fontsize=7, transform=ax.transAxes)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            continue
+        it = np.arange(1, len(hist.weight_avg) + 1)
+        ax.plot(it, hist.weight_avg, color="#1b7837", lw=1.4)
+        if tau is not None:
+            ax.axhline(tau, color="#1b7837", ls=":", lw=1.0)
+        twin = ax.twinx()
+        twin.plot(it, hist.std_avg, color="#b2182b", lw=1.4)
+        if r_c is not None:
+            twin.axhline(r_c, color="#b2182b", ls=":", lw=1.0)
+        twin.tick_params(labelsize=6, colors="#b2182b")
+        ax.tick_params(axis="y", colors="#1b7837")
+        ax.locator_params(nbins=4)
+        twin.locator_params(nbins=4)
+    save_figure(fig, path, dpi=dpi)
+    return fig
+
+
+def particles_montage(
     path: Path,
-    match: MatchResult,
-    reference: RangeScan | None,
+    matches: Sequence[MatchResult],
+    references: Sequence[RangeScan | None],
     labels: Sequence[str],
     *,
-    matcher_params: dict,
-    truth: tuple[float, float] | None,
+    truths: Sequence[tuple[float, float] | None],
     dpi: int,
-) -> FigureFile:
-    """Convergence of one pair and its particles over the reference scan's map (paper Fig. 6).
-
-    The right panel is in the reference station's frame, compass aligned: the reference echoes
-    (``m_i``), the reference station (yellow star) at the origin, the particles of the moving station
-    from the first (faint) to the last snapshot (green to white by weight), the estimate (red cross)
-    and, for simulated sites, the true position (cyan ring).
-    """
-    name_i, name_j = labels[match.i], labels[match.j]
-    fig = _figure(10.0, 4.2, dpi, left=0.07, right=0.8, bottom=0.12, top=0.9, wspace=0.45)
-    left, right = fig.subplots(1, 2, width_ratios=[1.0, 1.0])
-    tau, r_c = _thresholds(matcher_params)
-    hist = match.history
-    if hist is not None and len(hist.weight_avg):
-        it = np.arange(1, len(hist.weight_avg) + 1)
-        left.plot(it, hist.weight_avg, color="#1b7837", lw=1.8, label="weight average (eq. 6)")
-        if tau is not None:
-            left.axhline(tau, color="#1b7837", ls=":", lw=1.2, label="τ_pw")
-        left.set_ylabel("weight average", color="#1b7837")
-        twin = left.twinx()
-        twin.plot(it, hist.std_avg, color="#b2182b", lw=1.8, label="std average (eq. 5)")
-        if r_c is not None:
-            twin.axhline(r_c, color="#b2182b", ls=":", lw=1.2, label="r_c")
-        twin.set_ylabel("std average (m)", color="#b2182b")
-        lines = left.get_lines() + twin.get_lines()
-        left.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="center right")
-        left.set_xlabel("iteration")
-    else:
-        left.text(0.5, 0.5, "no convergence history recorded", ha="center", va="center", transform=left.transAxes)
-        left.set_axis_off()
-    left.set_title(f"Convergence: {name_j} in {name_i}'s map", fontsize=10)
-
-    right.set_facecolor("#111111")
-    if reference is not None:
-        pts = reference.points()
-        right.plot(pts[:, 0], pts[:, 1], ".", ms=2.0, color="#9e9e9e", label=f"{name_i} echoes (m_i)")
-    snaps = hist.snapshots if hist is not None else ()
-    for k, snap in enumerate(snaps):
-        snap = np.asarray(snap)
-        if snap.size == 0:
-            continue
-        order = np.argsort(snap[:, 3], kind="stable")
-        alpha = 0.25 + 0.75 * (k + 1) / len(snaps)
-        right.scatter(snap[order, 0], snap[order, 1], c=snap[order, 3], cmap=PARTICLES, s=5, alpha=alpha,
-                      linewidths=0, zorder=2)
-    right.scatter([0], [0], marker="*", s=160, c="#ffd92f", edgecolors="black", zorder=4, label=f"{name_i} (reference)")
-    if truth is not None:
-        right.scatter([truth[0]], [truth[1]], s=90, facecolors="none", edgecolors="#00e5ff", lw=1.5, zorder=4,
-                      label="true position")
-    if math.isfinite(match.dx_m) and math.isfinite(match.dy_m):
-        right.scatter([match.dx_m], [match.dy_m], marker="x", s=70, c="#ff1744", lw=2, zorder=5,
-                      label=f"estimate of {name_j}")
-    right.set_aspect("equal", adjustable="datalim")
-    right.set_xlabel("east of reference (m)")
-    right.set_ylabel("north of reference (m)")
-    right.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    state = "converged" if match.converged else "not converged"
-    right.set_title(f"Particles ({state}, weight {match.weight:.3g})", fontsize=10)
+) -> Figure:
+    """One small panel per pair, like the paper's Fig. 6: in the reference station's frame (compass
+    aligned), the reference echoes (grey), the reference station (yellow star), the particle snapshots
+    from the first (faint) to the last (green to white by weight), the estimate (red cross) and, for
+    simulated sites, the true position (cyan ring)."""
+    fig, axes = _grid_axes(len(matches), dpi)
+    for ax, match, reference, truth in zip(axes, matches, references, truths):
+        _pair_title(ax, match, labels)
+        ax.set_facecolor("#111111")
+        ax.tick_params(labelsize=6)
+        if reference is not None:
+            pts = reference.points()
+            ax.plot(pts[:, 0], pts[:, 1], ".", ms=1.2, color="#9e9e9e")
+        snaps = match.history.snapshots if match.history is not None else ()
+        for k, snap in enumerate(snaps):
+            snap = np.asarray(snap)
+            if snap.size == 0:
+                continue
+            order = np.argsort(snap[:, 3], kind="stable")
+            ax.scatter(snap[order, 0], snap[order, 1], c=snap[order, 3], cmap=PARTICLES, s=3,
+                       alpha=0.25 + 0.75 * (k + 1) / len(snaps), linewidths=0, zorder=2)
+        ax.scatter([0], [0], marker="*", s=70, c="#ffd92f", edgecolors="black", linewidths=0.5, zorder=4)
+        if truth is not None:
+            ax.scatter([truth[0]], [truth[1]], s=40, facecolors="none", edgecolors="#00e5ff", lw=1.2, zorder=4)
+        if math.isfinite(match.dx_m) and math.isfinite(match.dy_m):
+            ax.scatter([match.dx_m], [match.dy_m], marker="x", s=36, c="#ff1744", lw=1.5, zorder=5)
+        ax.set_aspect("equal", adjustable="datalim")
     save_figure(fig, path, dpi=dpi)
-    snaps_at = ", ".join(str(i) for i in (hist.snapshot_iterations if hist else ()))
-    caption = (
-        f"Pair {name_i} → {name_j}: {state} after {match.iterations} iterations, "
-        f"d = ({match.dx_m:.3f}, {match.dy_m:.3f}) m, weight {match.weight:.3g}"
-        + (f"; particle snapshots at iterations {snaps_at}" if snaps_at else "")
-        + (f"; {match.reason}" if match.reason else "") + "."
-    )
+    return fig
+
+
+def pair_figures(
+    out_dir: Path,
+    matches: Sequence[MatchResult],
+    references: Sequence[RangeScan | None],
+    labels: Sequence[str],
+    *,
+    truths: Sequence[tuple[float, float] | None],
+    matcher_params: dict,
+    per_figure: int,
+    dpi: int,
+) -> list[tuple[FigureFile, list[int]]]:
+    """Convergence and particle montages, ``per_figure`` pairs each, in the order given.
+
+    Returns
+    -------
+    list of (FigureFile, list of int)
+        Each figure and the positions in ``matches`` of the pairs it shows.
+    """
+    out: list[tuple[FigureFile, list[int]]] = []
+    for start in range(0, len(matches), per_figure):
+        chunk = list(range(start, min(start + per_figure, len(matches))))
+        part = start // per_figure + 1
+        names = ", ".join(f"{labels[matches[k].i]} → {labels[matches[k].j]}" for k in chunk)
+        suffix = f" ({part} of {math.ceil(len(matches) / per_figure)})" if len(matches) > per_figure else ""
+        conv = out_dir / f"pairs-convergence-{part}.png"
+        convergence_montage(conv, [matches[k] for k in chunk], labels, matcher_params=matcher_params, dpi=dpi)
+        out.append((FigureFile(
+            f"pairs-convergence-{part}", conv.name, f"Convergence of the pair matches{suffix}",
+            f"Small multiples, one per pair ({names}): weight average and position standard-deviation average "
+            "of the particle filter over the iterations",
+            "Green, left axis: exponential average of the particle weights (eq. 6), dotted at τ_pw; red, right "
+            "axis: exponential average of the particle position spread in metres (eq. 5), dotted at r_c. "
+            "A pair converges when green stays above its line and red falls below its own. Titles read "
+            "'moving in reference'; magenta titles did not converge."), chunk))
+        parts = out_dir / f"pairs-particles-{part}.png"
+        particles_montage(parts, [matches[k] for k in chunk], [references[k] for k in chunk], labels,
+                          truths=[truths[k] for k in chunk], dpi=dpi)
+        out.append((FigureFile(
+            f"pairs-particles-{part}", parts.name, f"Particles of the pair matches{suffix}",
+            f"Small multiples, one per pair ({names}): particles of the moving station over the reference "
+            "station's echoes",
+            "Like Fig. 6 of the paper, in the reference station's frame (metres east and north of it): grey, the "
+            "reference scan's echoes (its map m_i); yellow star, the reference station; dots, the moving "
+            "station's particles from early (faint) to last, green to white as their weight grows; red cross, "
+            "the estimate; cyan ring, the true position when the site is simulated."), chunk))
+    return out
+
+
+def fan_montage(
+    path: Path, scans: Sequence[Scan], ranged: Sequence[RangeScan | None], segmentation, *, dpi: int, pixels: int = 260
+) -> FigureFile:
+    """One panel per scan: the raw intensities as a fan (sonar frame, forward up, like the head's own
+    display; :func:`cistern_archive.sonar.fan.polar_to_cartesian`) with the segmented wall echoes of
+    Sec. III-B over it (cyan dots)."""
+    from cistern_archive.sonar.fan import polar_to_cartesian
+
+    fig, axes = _grid_axes(len(scans), dpi)
+    for ax, scan, ranges in zip(axes, scans, ranged):
+        image, extent = polar_to_cartesian(scan.bearings_rad, scan.normalised(), scan.bin_size_m,
+                                           scan.start_range_m, pixels=pixels)
+        ax.set_facecolor("#101010")
+        ax.imshow(image, cmap="inferno", vmin=0, vmax=1, extent=(-extent, extent, -extent, extent),
+                  interpolation="nearest")
+        if ranges is not None and ranges.valid.any():
+            pts = ranges.points(yaw_rad=0.0)
+            ax.plot(-pts[:, 1], pts[:, 0], ".", ms=1.0, color="#4fc3f7")
+        ax.plot([0], [0], "+", color="white", ms=6)
+        ax.set_title(scan.station or "scan", fontsize=8)
+        ax.tick_params(labelsize=6)
+        ax.set_aspect("equal")
+    save_figure(fig, path, dpi=dpi)
+    names = ", ".join(s.station or "scan" for s in scans)
+    beams = sorted({s.n_beams for s in scans})
     return FigureFile(
-        f"pair-{match.i}-{match.j}", path.name, f"Pair {name_i} → {name_j}",
-        f"Left: weight and standard-deviation averages of the particle filter over iterations for {name_j} "
-        f"matched in {name_i}'s map. Right: particles over {name_i}'s echoes, {state}.",
-        caption,
-    )
-
-
-def fan_figure(path: Path, scan: Scan, ranged: RangeScan | None, segmentation, *, dpi: int) -> FigureFile:
-    """Raw and segmented fan of one scan (the segmented image of Sec. III-B and its ranges)."""
-    from cistern_archive.sonar.fan import fan_png
-    from cistern_archive.sonar.segmentation import segment_intensities
-
-    try:
-        segmented = segment_intensities(scan, segmentation)
-    except (ValueError, TypeError):
-        segmented = None
-    label = scan.station or path.stem
-    path.write_bytes(fan_png(scan, segmented=segmented, ranges=ranged, title=f"{label} · {scan.sonar_model}",
-                             pixels=320, dpi=dpi))
-    valid = int(np.count_nonzero(ranged.valid)) if ranged is not None else 0
-    caption = (f"{label}: {scan.n_beams} beams × {scan.n_bins} bins of {scan.bin_size_m:.3f} m, "
-               f"depth {scan.depth_m:.2f} m; {valid} beams with a wall echo after segmentation.")
-    return FigureFile(f"fan-{label}", path.name, f"Scan {label}",
-                      f"Sonar fan of scan {label}: raw intensities"
-                      + (" and the segmented image with its ranges" if segmented is not None else ""), caption)
+        "fans", path.name, "Raw scans with their segmented echoes",
+        f"Sonar fans of the scans {names}: raw echo intensity with the segmented wall echoes as dots",
+        "Each fan is one stationary 360° scan in the sonar's own frame, forward up, metres right and forward of "
+        "the head (white cross): colour is the raw echo intensity (dark weak, yellow strong); cyan dots are "
+        f"the wall ranges the beam segmentation kept ({'/'.join(str(b) for b in beams)} beams per scan).")
 
 
 def probe_figure(path: Path, grids: Sequence[EvidenceGrid], table: DimensionTable, *, dpi: int) -> FigureFile:
     """The probe lines of every dimension over the grid slice it was measured in."""
     rows = [r for r in table.rows if r.probe_lines]
     depths = sorted({choose_slice(grids, r.depth_m).depth_m for r in rows}) or [grids[0].depth_m]
-    width = 4.6 * len(depths) + 2.6
-    fig = _figure(width, 5.8, dpi, left=0.8 / width, right=1 - 2.5 / width, bottom=0.09, top=0.93, wspace=0.3)
+    if len(depths) == 1:
+        fig = _map_canvas(choose_slice(grids, depths[0]), dpi)
+    else:
+        width = 4.6 * len(depths) + 2.6
+        fig = _figure(width, 5.8, dpi, left=0.8 / width, right=1 - 2.5 / width, bottom=0.09, top=0.93, wspace=0.3)
     axes = np.atleast_1d(fig.subplots(1, len(depths)))
     handles = []
     for ax, depth in zip(axes, depths):
@@ -305,7 +374,7 @@ def slices_figure(path: Path, grids: Sequence[EvidenceGrid], *, dpi: int) -> Fig
     n = len(grids)
     cols = min(n, 4)
     rows = math.ceil(n / cols)
-    fig = _figure(3.2 * cols, 3.4 * rows, dpi, left=0.12, right=0.97, bottom=0.1, top=0.92, wspace=0.4,
+    fig = _figure(3.2 * cols, 3.6 * rows, dpi, left=0.12, right=0.97, bottom=0.16, top=0.9, wspace=0.45,
                   hspace=0.35)
     axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
     xmin = min(g.extent_m[0] for g in grids)

@@ -191,7 +191,7 @@ def _truth_offset(result: SiteResult, i: int, j: int) -> tuple[float, float] | N
 def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: ReportConfig) -> dict[str, Any]:
     """Every matplotlib figure of the page; returns ``map``, ``slices``, ``probes``, ``thumbnail``,
     ``pairs`` (list) and ``fans`` (list) entries for what could be drawn."""
-    out: dict[str, Any] = {"pairs": [], "fans": [], "pairs_not_drawn": 0, "fans_not_drawn": 0}
+    out: dict[str, Any] = {"pairs": [], "pair_keys": {}, "fans": [], "pairs_not_drawn": 0, "fans_not_drawn": 0}
     grids = build.map_result.grids if build.map_result is not None else ()
     grid = fig.choose_slice(grids, _scan_depth(build)) if grids else None
     if grid is not None or build.poses is not None:
@@ -203,18 +203,22 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
         out["slices"] = fig.slices_figure(site_dir / "slices.png", grids, dpi=config.dpi)
     if grids and build.table is not None and any(r.probe_lines for r in build.table.rows):
         out["probes"] = fig.probe_figure(site_dir / "probes.png", grids, build.table, dpi=config.dpi)
-    params = _matcher_params(build.result)
     matches = sorted(build.matches, key=lambda m: (m.i, m.j))
-    for m in matches[: config.max_pair_figures]:
-        reference = build.range_scans[m.i] if 0 <= m.i < len(build.range_scans) else None
-        out["pairs"].append(fig.pair_figure(
-            site_dir / f"pair-{m.i}-{m.j}.png", m, reference, labels, matcher_params=params,
-            truth=_truth_offset(build.result, m.i, m.j), dpi=config.dpi))
+    drawn_matches = matches[: config.max_pair_figures]
+    out["pairs"] = fig.pair_figures(
+        site_dir, drawn_matches,
+        [build.range_scans[m.i] if 0 <= m.i < len(build.range_scans) else None for m in drawn_matches],
+        labels, truths=[_truth_offset(build.result, m.i, m.j) for m in drawn_matches],
+        matcher_params=_matcher_params(build.result), per_figure=config.pairs_per_figure, dpi=config.dpi)
+    out["pair_keys"] = {(m.i, m.j): [f.key for f, chunk in out["pairs"] if k in chunk]
+                        for k, m in enumerate(drawn_matches)}
+    out["pairs"] = [f for f, _ in out["pairs"]]
     out["pairs_not_drawn"] = max(0, len(matches) - config.max_pair_figures)
-    segmentation = getattr(build.record, "segmentation", None)
-    for k, scan in enumerate(build.raw_scans[: config.max_fan_figures]):
-        ranged = build.range_scans[k] if k < len(build.range_scans) else None
-        out["fans"].append(fig.fan_figure(site_dir / f"fan-{k}.png", scan, ranged, segmentation, dpi=config.dpi))
+    scans = build.raw_scans[: config.max_fan_figures]
+    if scans:
+        ranged = [build.range_scans[k] if k < len(build.range_scans) else None for k in range(len(scans))]
+        out["fans"] = [fig.fan_montage(site_dir / "fans.png", scans, ranged,
+                                       getattr(build.record, "segmentation", None), dpi=config.dpi)]
     out["fans_not_drawn"] = max(0, len(build.raw_scans) - config.max_fan_figures)
     return out
 
@@ -298,12 +302,13 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     views = {id(f): _figure_view(f, a, site_dir) for (_, f), a in zip(all_figures, anchors)}
     figures = {key: None for key in ("map", "slices", "probes")}
     figures.update({key: views[id(f)] for key, f in single})
-    pair_anchor = {f.key: views[id(f)]["anchor"] for f in drawn["pairs"]}
+    figure_anchor = {f.key: views[id(f)]["anchor"] for f in drawn["pairs"]}
+    pair_anchor = {pair: figure_anchor[keys[-1]] for pair, keys in drawn["pair_keys"].items() if keys}
     pairs = [{"label": f"{_label(labels, p.i)} → {_label(labels, p.j)}", "dx": signed(p.dx_m), "dy": signed(p.dy_m),
               "dyaw": signed(math.degrees(p.dyaw_rad), 2), "weight": number(p.weight, 3),
               "converged": "yes" if p.converged else "no", "iterations": str(p.iterations),
               "seconds": number(p.seconds, 2), "reason": p.reason or "—",
-              "figure": f"pair-{p.i}-{p.j}" in pair_anchor, "anchor": pair_anchor.get(f"pair-{p.i}-{p.j}", "")}
+              "figure": (p.i, p.j) in pair_anchor, "anchor": pair_anchor.get((p.i, p.j), "")}
              for p in sorted(result.pairs, key=lambda p: (p.i, p.j))]
     has_truth = any(s.truth_x_m is not None for s in result.scans)
     placed = []

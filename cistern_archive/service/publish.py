@@ -64,10 +64,16 @@ def exchange(a: Path, b: Path) -> bool:
 
 
 def sync_tree(folder: Path) -> None:
-    """Flush every file of a freshly written folder, then the folders, to disk."""
+    """Make a freshly written folder world-readable (temporary files are created private) and flush
+    every file, then the folders, to disk."""
     for root, dirs, files in os.walk(folder):
+        for name in dirs:
+            os.chmod(os.path.join(root, name), 0o755)
         for name in files:
-            fd = os.open(os.path.join(root, name), os.O_RDONLY)
+            path = os.path.join(root, name)
+            if os.stat(path).st_mode & 0o044 != 0o044:
+                os.chmod(path, 0o644)
+            fd = os.open(path, os.O_RDONLY)
             try:
                 os.fsync(fd)
             finally:

@@ -273,6 +273,10 @@ def rebuild(
         with Archive(archive_dir) as store:
             store.store.clean_tmp()
             store.index.start_run(run_id, catalog=str(catalog), out=str(out), executor="pending", agent=store.agent)
+            abandoned = store.index.abandon_runs(str(out), keep=run_id)
+            if abandoned:
+                summary.recovered.append(f"marked {abandoned} unfinished earlier run(s) as abandoned")
+                log.write(f"recovery: {abandoned} earlier run(s) into {out} never finished", "WARN")
             plans = [plan_site(loaded, store, registry, run_id, report_config) for loaded in selected]
             todo = [p for p in plans if force or not is_current(out / p.site_id, p.key.key)]
             skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key, report=f"{p.site_id}/index.html")

@@ -30,12 +30,15 @@ Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
     4. detections closer than ``min_range_m`` are dropped (the vehicle's own echo and the transducer's
        ring-down); the training cells still see those bins, so the decaying near field does not pass
        the test just beyond ``min_range_m``;
-    5. among the detections of a beam the **first** one whose peak reaches ``FIRST_RATIO`` of the beam's
-       strongest detection is the wall: later, possibly stronger, echoes are multipath ghosts (the
-       direct path is the shortest);
+    5. among the detections of a beam the **first** one reaching ``FIRST_RATIO`` of the beam's strongest
+       detection starts the wall echo (the contiguous run of detections from there; its peak is the
+       run's maximum): later, possibly stronger, echoes are multipath ghosts (the direct path is the
+       shortest);
     6. the range is the intensity-weighted centroid of the raw bins around that echo's peak (sub-bin).
 
-Both return a :class:`~cistern_archive.sonar.scan.RangeScan`.
+Both return a :class:`~cistern_archive.sonar.scan.RangeScan`. The CFAR constants below were chosen on
+simulated scans whose seeds are not those of the bundled catalog; ``benchmarks/segmentation.py`` compares
+the two methods.
 """
 
 from __future__ import annotations
@@ -49,8 +52,8 @@ from cistern_archive.sonar.scan import RangeScan, Scan
 PAPER_SCALE = 255
 CFAR_TRAIN = 8
 CFAR_GUARD = 2
-CFAR_SCALE = 3.0
-FIRST_RATIO = 0.5
+CFAR_SCALE = 1.5
+FIRST_RATIO = 0.7
 
 
 class SegmentationSettings(Protocol):
@@ -158,7 +161,11 @@ def cfar_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[n
 
 
 def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarray:
-    """Per beam the peak bin of the first detected echo reaching FIRST_RATIO of the strongest; -1 if none."""
+    """Per beam the peak bin of the first detected echo reaching FIRST_RATIO of the strongest; -1 if none.
+
+    The echo is the contiguous run of detections starting at its first strong bin; its peak is the run's
+    largest smoothed value.
+    """
     n_beams, n_bins = smooth.shape
     masked = np.where(detections, smooth, 0.0)
     strongest = masked.max(axis=1) if n_bins else np.zeros(n_beams)
@@ -167,11 +174,10 @@ def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarra
     first = np.argmax(strong, axis=1)
     peaks = np.full(n_beams, -1, dtype=np.int64)
     for beam in np.flatnonzero(has):
-        k = int(first[beam])
-        row = smooth[beam]
-        while k + 1 < n_bins and row[k + 1] > row[k]:
-            k += 1
-        peaks[beam] = k
+        start = int(first[beam])
+        run = detections[beam, start:]
+        length = int(np.argmin(run)) if not run.all() else run.size
+        peaks[beam] = start + int(np.argmax(smooth[beam, start:start + max(length, 1)]))
     return peaks
 
 

@@ -3,9 +3,14 @@
 The model of one stationary 360° scan (all levels in dB re an arbitrary source level):
 
 * **Beam**: the head steps ``step_deg`` clockwise (seen from above), so bearings in the sonar frame
-  (counter-clockwise, see :mod:`cistern_archive.sonar.scan`) decrease. Each beam is ``sub_rays`` rays
-  across a Gaussian two-way pattern of full width at half maximum ``beam_width_deg``; each ray is cast to
-  the walls of the depth slice the sonar is in (:mod:`cistern_archive.sonar.geometry`).
+  (counter-clockwise, see :mod:`cistern_archive.sonar.scan`) decrease. Each beam is ``sub_rays`` x
+  ``vertical_rays`` rays across Gaussian two-way patterns of full width at half maximum
+  ``beam_width_deg`` (horizontal) and ``vertical_beam_width_deg`` (vertical). A ray at elevation ``e``
+  meets the wall at the horizontal distance ``h`` where the walls of the depth ``d + h tan e`` are
+  (walls change with depth in 3-D sites: found by fixed-point iteration over interpolated slices,
+  :mod:`cistern_archive.sonar.geometry`), at slant range ``h / cos e``; rays reaching the floor or the
+  surface first give no wall echo. Vertical walls therefore give a sharp leading edge with a short tail,
+  and sloping (bell-shaped) walls a longer smear.
 * **Echo** of a ray hitting a wall at range ``r`` with incidence cosine ``c``:
   ``BS(c) - n_s log10 r - 2 a r`` with backscatter ``BS = 10 log10(c^2 + roughness)`` (Lambert-like), two-way
   spreading ``n_s`` (40) and absorption ``a`` dB/m one way. The compressed (matched-filter) pulse puts the
@@ -123,6 +128,59 @@ def _pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
     return offsets, weights / weights.sum()
 
 
+def _vertical_pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Elevation offsets (rad) and two-way Gaussian weights (summing to 1) across the vertical lobe."""
+    width = math.radians(sonar.vertical_beam_width_deg)
+    if sonar.vertical_rays == 1:
+        return np.zeros(1), np.ones(1)
+    offsets = np.linspace(-0.6 * width, 0.6 * width, sonar.vertical_rays)
+    weights = np.exp(-4.0 * math.log(2.0) * (offsets / width) ** 2)
+    return offsets, weights / weights.sum()
+
+
+DEPTH_STEP_M = 0.05
+
+
+def lobe_hits(
+    rings: Slice, levels: list[tuple[float, Slice]] | None, origin: np.ndarray, angles: np.ndarray,
+    depth_m: float, elevation: float, water_depth_m: float | None, *, iterations: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Slant range and incidence cosine of rays at ``elevation`` (rad, positive down) to the walls.
+
+    Parameters
+    ----------
+    rings : Slice
+        The walls at the sonar's depth.
+    levels : list of (depth, Slice), optional
+        The site's levels when walls change with depth; ``None`` for vertical walls.
+    origin, angles, depth_m :
+        Where the head is and the rays' map-frame directions.
+    elevation : float
+        Ray elevation below the horizontal.
+    water_depth_m : float, optional
+        Rays meeting the floor (or the surface, depth 0) before a wall return ``inf``.
+
+    Returns
+    -------
+    slant_m, cos_incidence : ndarray, shape angles.shape
+    """
+    horizontal, cosines = ray_cast(origin, angles, rings)
+    tan_e = math.tan(elevation)
+    if levels is not None and len(levels) > 1 and elevation != 0.0:
+        for _ in range(iterations):
+            depth = depth_m + np.where(np.isfinite(horizontal), horizontal, 0.0) * tan_e
+            quantised = np.round(np.clip(depth, 0.0, None) / DEPTH_STEP_M) * DEPTH_STEP_M
+            for value in np.unique(quantised):
+                pick = quantised == value
+                horizontal[pick], cosines[pick] = ray_cast(origin, angles[pick], interpolate_slice(levels, value))
+    hit_depth = depth_m + horizontal * tan_e
+    ok = np.isfinite(horizontal) & (hit_depth >= 0.0)
+    if water_depth_m is not None:
+        ok &= hit_depth <= water_depth_m
+    slant = np.where(ok, horizontal / math.cos(elevation), np.inf)
+    return slant, np.where(ok, cosines * math.cos(elevation), 0.0)
+
+
 def _bin_fractions(ranges: np.ndarray, edges: np.ndarray, sigma: float) -> np.ndarray:
     """Fraction of a Gaussian pulse centred on each range falling in each bin, shape ranges.shape + (B,)."""
     cdf = ndtr((edges - ranges[..., None]) / sigma)
@@ -212,6 +270,7 @@ def simulate_scan(
     *,
     timestamp: float = float("nan"),
     water_depth_m: float | None = None,
+    levels: list[tuple[float, Slice]] | None = None,
 ) -> SimulatedScan:
     """Simulate one stationary 360° scan (model in the module docstring).
 
@@ -227,7 +286,9 @@ def simulate_scan(
     timestamp : float
         Start of the sweep (Unix seconds).
     water_depth_m : float, optional
-        Floor depth, for floor reverberation.
+        Floor depth, for floor reverberation and for the vertical lobe.
+    levels : list of (depth, Slice), optional
+        The site's levels, when its walls change with depth (the vertical lobe sees other depths).
 
     Returns
     -------
@@ -238,11 +299,18 @@ def simulate_scan(
     edges = np.arange(sonar.bins + 1) * bin_size
     centres = edges[:-1] + bin_size / 2
     offsets, weights = _pattern(sonar)
+    elevations, v_weights = _vertical_pattern(sonar)
     origin = np.array([pose.x_m, pose.y_m])
     beam_angles = pose.yaw_rad + bearings
-    ranges, cosines = ray_cast(origin, (beam_angles[:, None] + offsets[None, :]).ravel(), rings)
-    ranges = ranges.reshape(bearings.size, offsets.size)
-    cosines = cosines.reshape(bearings.size, offsets.size)
+    ray_angles = (beam_angles[:, None] + offsets[None, :]).ravel()
+    slant, cos_inc = [], []
+    for elevation in elevations:
+        r, c = lobe_hits(rings, levels, origin, ray_angles, pose.depth_m, float(elevation), water_depth_m)
+        slant.append(r.reshape(bearings.size, offsets.size))
+        cos_inc.append(c.reshape(bearings.size, offsets.size))
+    ranges = np.concatenate(slant, axis=1)
+    cosines = np.concatenate(cos_inc, axis=1)
+    weights = (v_weights[:, None] * weights[None, :]).ravel()
     axial_r, axial_c = ray_cast(origin, beam_angles, rings)
 
     echo = _echo_profiles(ranges, cosines, weights, sonar, effects, edges)
@@ -379,5 +447,6 @@ def simulate_site(spec: SimulationSpec, *, effects: EffectsSpec | None = None) -
         scans.append(simulate_scan(
             rings, pose, spec.sonar, effects, station_rng(spec.seed, 1, k),
             timestamp=start + k * spec.seconds_per_station, water_depth_m=spec.site.water_depth_m,
+            levels=spec.site.slices() if len(spec.site.levels) > 1 else None,
         ))
     return SimulatedSite(spec=spec, scans=scans)

@@ -364,7 +364,10 @@ class Discard:
 class StreamDecoder:
     """Incremental SeaNet decoder: feed byte chunks of any size, get whole validated packets.
 
-    The decoder keeps at most one partial frame (bounded by :data:`MAX_LENGTH`). Skipped bytes are
+    The decoder keeps at most one partial frame (bounded by :data:`MAX_LENGTH`). A false ``@`` whose hex
+    and binary lengths happen to agree holds output back until its claimed length has arrived (at most
+    ``MAX_LENGTH + 6`` bytes), then is rejected and the bytes after it are searched again, so no good
+    packet is lost; :meth:`finish` does the same at the end of a stream. Skipped bytes are
     reported as :class:`Discard` records in :attr:`discards` (drain them with :meth:`take_discards`);
     contiguous skipped bytes are merged into one record, whose reason is the first failed check (or
     "no '@'" when the bytes held no ``@``).

@@ -23,6 +23,7 @@ exactly as it came off the wire, garbage included.
 from __future__ import annotations
 
 import math
+import select
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -163,6 +164,7 @@ class MicronDriver:
         self._decoder = StreamDecoder()
         self._packets: deque[Packet] = deque()
         self._lost_params = False
+        self._fd: int | None = None
 
     # port ----------------------------------------------------------------------------------------
 
@@ -179,6 +181,9 @@ class MicronDriver:
                 if not self._serial.is_open:
                     self._serial.open()
             self._serial.reset_input_buffer()
+            self._fd = _waitable_fd(self._serial)
+            if self._fd is not None:
+                self._serial.timeout = 0  # reads return what is there; waiting is done with select
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkError(self.port_name, f"cannot open the port: {exc}") from None
         return self
@@ -212,13 +217,16 @@ class MicronDriver:
         except (serial.SerialException, OSError) as exc:
             raise LinkError(self.port_name, f"link lost while writing: {exc}") from None
 
-    def _fill(self) -> None:
-        """Read what the port has (waiting at most its short timeout) and decode it."""
+    def _fill(self, wait_s: float) -> None:
+        """Wait up to ``wait_s`` for input, read everything available, decode it."""
         assert self._serial is not None
         try:
-            waiting = self._serial.in_waiting
-            data = self._serial.read(max(1, min(waiting, 65536)))
-        except (serial.SerialException, OSError) as exc:
+            if self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], max(0.0, wait_s))
+                data = self._serial.read(65536) if ready else b""
+            else:
+                data = self._serial.read(max(1, min(self._serial.in_waiting, 65536)))
+        except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkError(self.port_name, f"link lost while reading: {exc}") from None
         if not data:
             return
@@ -241,9 +249,10 @@ class MicronDriver:
                 if packet.type == MessageType.ALIVE:
                     self._note_alive(packet)
                 return packet
-            if time.monotonic() >= deadline:
+            left = deadline - time.monotonic()
+            if left <= 0:
                 return None
-            self._fill()
+            self._fill(min(left, 0.05))
 
     def _note_alive(self, packet: Packet) -> None:
         try:
@@ -352,9 +361,9 @@ class MicronDriver:
         """Lines answering the outstanding request: up to the expected count, or until a quiet gap."""
         expected = self.replies_per_request
         lines: list[HeadData] = []
-        timeout = self.config.reply_timeout_s
+        deadline = time.monotonic() + self.config.reply_timeout_s
         while len(lines) < expected:
-            packet = self.next_packet(timeout if not lines else self._quiet_gap())
+            packet = self.next_packet(deadline - time.monotonic())
             if packet is None:
                 break
             if packet.type != MessageType.HEAD_DATA:
@@ -367,6 +376,7 @@ class MicronDriver:
             if line.motor_error or line.power_loss:
                 self._lost_params = True
             lines.append(line)
+            deadline = time.monotonic() + self._quiet_gap()
         return lines
 
     def lines(self) -> Iterator[HeadData]:
@@ -407,6 +417,15 @@ class MicronDriver:
             silent = 0
             reboots_without_line += 1
             self.reboot()
+
+
+def _waitable_fd(port: serial.SerialBase) -> int | None:
+    """A file descriptor ``select`` can wait on (device, pty, ``socket://``), or None (e.g. ``loop://``)."""
+    try:
+        fd = port.fileno()
+    except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
 
 
 def _alive_has_params(packet: Packet) -> bool:

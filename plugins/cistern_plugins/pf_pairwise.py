@@ -14,6 +14,13 @@ Decisions where the paper's text is ambiguous
   the beams used, so it lies in ``[-1, 1]`` whatever the beam count: ``1`` means every beam lands on a
   wall of ``m_i``; ``0`` means as many beams agree as disagree. ``tau_pw`` (eq. 6) is in these units;
   the paper's 6.0 was a sum over the beams of its scans.
+* **Unknown space** – ``m_i`` holds evidence only where scan ``i`` looked. A beam whose end point
+  falls in a cell with no evidence at all (log-odds exactly 0) and that meets no wall contributes
+  ``unknown_score`` instead of the penalty: ``-1`` reproduces the paper (every disagreeing beam is
+  penalised, so a pair with 50 % overlap scores about ``0.5 * 0.85 - 0.5 = -0.08`` at the right
+  place); the default ``0`` treats "no evidence" as neither agreement nor contradiction, so the weight
+  at the right place is about the overlap fraction times the agreement, while beams that end in
+  space ``m_i`` saw as free are still penalised.
 * **δm** – ``measurement_model="raycast"`` casts a ray from the particle along the beam to the first
   cell of ``m_i`` whose occupancy probability exceeds ``weight_threshold`` (sphere tracing over the
   distance field, which returns the same first hit as a half-cell march, see
@@ -62,7 +69,7 @@ class PFParams(StageParams):
 
     cell_m: float = Field(0.05, gt=0, description="map cell size r_c (m); sigma_c = 2 r_c")
     n_particles: int = Field(500, ge=10, le=100_000, description="Num_Particles")
-    l_init_m: float = Field(6.0, gt=0, description="side of the uniform initial square L_init (m)")
+    l_init_m: float = Field(8.0, gt=0, description="side of the uniform initial square L_init (m)")
     theta_init_std_deg: float = Field(2.0, ge=0, description="std of the initial heading correction (deg)")
     sigma_n_xy_m: float = Field(0.02, ge=0, description="propagation noise sigma_n of x and y (m)")
     sigma_n_theta_deg: float = Field(0.5, ge=0, description="propagation noise sigma_n of theta (deg)")
@@ -78,10 +85,18 @@ class PFParams(StageParams):
     init_oversample: int = Field(8, ge=1, le=100, description="uniform samples weighed at start, per particle")
     max_beams: int = Field(400, ge=1, description="beams of the moving scan used (evenly subsampled)")
     min_beams: int = Field(10, ge=1, description="fewer echoes than this: not converged")
+    verify: bool = Field(True, description="reject converged estimates that are ambiguous or on the search edge")
+    verify_step_m: float = Field(0.1, gt=0, description="grid step of the ambiguity search (m)")
+    ambiguity_radius_m: float = Field(0.5, gt=0, description="alternatives farther than this count as other modes")
+    ambiguity_ratio: float = Field(0.85, gt=0, le=1, description="an alternative scoring this share of the best is a rival")
+    max_crossing: float = Field(0.1, ge=0, le=1, description="largest share of beams that may cross a wall of m_i")
     history_snapshots: int = Field(4, ge=0, le=50, description="particle snapshots kept for the report")
     snapshot_particles: int = Field(200, ge=1, description="particles kept per snapshot")
     map_l_occ: float = Field(0.85, gt=0, description="log-odds of an echo cell in m_i")
     map_l_free: float = Field(-0.4, lt=0, description="log-odds of a free cell in m_i")
+    unknown_score: float = Field(
+        0.0, ge=-1, le=1, description="contribution of a beam whose end lies where m_i has no evidence (paper: -1)"
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,6 +115,8 @@ class _MapModel:
     dense: DenseMap
     lookup: OccupancyLookup
     score_flat: np.ndarray
+    known_flat: np.ndarray
+    coarse_flat: np.ndarray
 
 
 class PFPairwiseMatcher:
@@ -140,7 +157,18 @@ class PFPairwiseMatcher:
         sonar = SonarModel(l_occ=p.map_l_occ, l_free=p.map_l_free, free_no_echo=False)
         dense = dense_scan_map(reference, cell_m=p.cell_m, model=sonar, margin_m=p.delta_max_m + p.cell_m)
         lookup = OccupancyLookup(dense.occupied(p.weight_threshold), dense.origin_xy_m, dense.cell_m)
-        model = _MapModel(dense=dense, lookup=lookup, score_flat=_score(lookup.distance_flat, p))
+        known = np.zeros((dense.log_odds.shape[0] + 2, dense.log_odds.shape[1] + 2), dtype=bool)
+        known[1:-1, 1:-1] = dense.log_odds != 0
+        known = known.ravel()
+
+        def field(sigma_c: float) -> np.ndarray:
+            score = _score(lookup.distance_flat, p, sigma_c)
+            return np.where(known | (score > 0), score, np.float32(p.unknown_score)).astype(np.float32)
+
+        model = _MapModel(
+            dense=dense, lookup=lookup, score_flat=field(2.0 * p.cell_m), known_flat=known,
+            coarse_flat=field(max(2.0 * p.cell_m, p.verify_step_m)),
+        )
         self._maps[key] = model
         while len(self._maps) > 4:
             self._maps.popitem(last=False)
@@ -157,9 +185,9 @@ def _map_key(scan: RangeScan, p: PFParams) -> bytes:
     return h.digest()
 
 
-def _score(distance: np.ndarray, p: PFParams) -> np.ndarray:
-    """Per-beam contribution of eqs. 3–4 as a function of ``|δs - δm|`` (float32)."""
-    sigma_c = 2.0 * p.cell_m
+def _score(distance: np.ndarray, p: PFParams, sigma_c: float | None = None) -> np.ndarray:
+    """Per-beam contribution of eqs. 3–4 as a function of ``|δs - δm|`` (float32); σc = 2 r_c by default."""
+    sigma_c = 2.0 * p.cell_m if sigma_c is None else sigma_c
     d = distance.astype(np.float64)
     phi = np.exp(-(d * d) / (2.0 * sigma_c * sigma_c))
     return np.where(d < p.delta_max_m, phi, -(1.0 - phi)).astype(np.float32)
@@ -205,7 +233,11 @@ def _weigh(model: _MapModel, beams: _Beams, particles: np.ndarray, p: PFParams) 
     diff = np.where(np.isfinite(hit), np.abs(beams.ranges - hit), FAR_M)
     sigma_c = 2.0 * p.cell_m
     phi = np.exp(-(diff * diff) / (2.0 * sigma_c * sigma_c))
-    return np.where(diff < p.delta_max_m, phi, -(1.0 - phi)).mean(axis=1)
+    score = np.where(diff < p.delta_max_m, phi, -(1.0 - phi))
+    if p.unknown_score != -1.0:
+        end_known = model.known_flat[model.lookup.flat_index(x + beams.ranges * ux, y + beams.ranges * uy)]
+        score = np.where(np.isfinite(hit) | end_known, score, p.unknown_score)
+    return score.mean(axis=1)
 
 
 def _low_variance(probabilities: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -303,10 +335,14 @@ def _run_filter(
     iterations = iteration + 1
     reason = "" if converged else _why(w_avg, s_avg, iterations, p)
     theta = math.atan2(float(np.sin(particles[:, 2]).mean()), float(np.cos(particles[:, 2]).mean()))
+    dx, dy = float(particles[:, 0].mean()), float(particles[:, 1].mean())
+    if converged and p.verify:
+        reason = verify_unique(model, beams, (dx, dy, theta), p)
+        converged = not reason
     return MatchResult(
         i=-1, j=-1,
-        dx_m=float(particles[:, 0].mean()),
-        dy_m=float(particles[:, 1].mean()),
+        dx_m=dx,
+        dy_m=dy,
         dyaw_rad=theta,
         weight=w_avg,
         converged=converged,
@@ -316,6 +352,57 @@ def _run_filter(
         covariance=np.cov(particles.T),
         history=history.finish(iteration, particles, w),
     )
+
+
+def crossing_fraction(model: _MapModel, beams: _Beams, estimate: tuple[float, float, float], p: PFParams) -> float:
+    """Share of the beams whose ray, cast from the estimate, meets a wall of ``m_i`` more than ``δmax``
+    before the beam's own echo (the free space scan ``j`` saw is a wall in scan ``i``'s map)."""
+    dx, dy, theta = estimate
+    angle = np.arctan2(beams.sin, beams.cos) + theta
+    hit = model.lookup.sphere_trace(np.full(angle.shape, dx), np.full(angle.shape, dy), angle, beams.ranges)
+    return float(np.mean(np.isfinite(hit) & (hit < beams.ranges - p.delta_max_m)))
+
+
+def verify_unique(model: _MapModel, beams: _Beams, estimate: tuple[float, float, float], p: PFParams) -> str:
+    """Why a converged estimate cannot be trusted ("" if it can).
+
+    The particles can collapse onto one of several equally good places (a straight gallery, a
+    symmetric room, a true offset outside the search square), and eqs. 5–6 cannot tell. First, more
+    than ``max_crossing`` of the beams may not cross a wall of ``m_i`` (:func:`crossing_fraction`).
+    Then, with the heading
+    fixed at the estimate, every position of the ``L_init`` square on a ``verify_step_m`` grid is scored
+    with the likelihood field smoothed to that step; the estimate is rejected when a position more than
+    ``ambiguity_radius_m`` away scores at least ``ambiguity_ratio`` of the estimate's score, or when the
+    estimate lies within one step of the square's edge.
+    """
+    dx, dy, theta = estimate
+    half = 0.5 * p.l_init_m
+    if max(abs(dx), abs(dy)) > half - p.verify_step_m:
+        return (f"estimate ({dx:.2f}, {dy:.2f}) m is at the edge of the {p.l_init_m:g} m search square; "
+                "the true offset may lie outside it (raise l_init_m)")
+    crossing = crossing_fraction(model, beams, estimate, p)
+    if crossing > p.max_crossing:
+        return (f"{100 * crossing:.0f} % of the beams pass through walls of the reference map before their "
+                f"echo (more than max_crossing={p.max_crossing:g}): the scans contradict each other here")
+    axis = np.arange(-half, half + 1e-9, p.verify_step_m)
+    gx, gy = np.meshgrid(axis, axis)
+    cand = np.column_stack([np.append(gx.ravel(), dx), np.append(gy.ravel(), dy)])
+    c, s = math.cos(theta), math.sin(theta)
+    ux = c * beams.cos - s * beams.sin
+    uy = s * beams.cos + c * beams.sin
+    flat = model.lookup.flat_index(cand[:, 0:1] + beams.ranges * ux, cand[:, 1:2] + beams.ranges * uy)
+    score = model.coarse_flat[flat].mean(axis=1, dtype=np.float64)
+    best = max(float(score[-1]), float(score[:-1][np.hypot(cand[:-1, 0] - dx, cand[:-1, 1] - dy) <= p.verify_step_m].max(initial=-1.0)))
+    far = np.hypot(cand[:-1, 0] - dx, cand[:-1, 1] - dy) > p.ambiguity_radius_m
+    if not far.any() or best <= 0:
+        return "" if best > 0 else f"estimate scores {best:.3f} on the verification grid"
+    k = int(np.argmax(np.where(far, score[:-1], -np.inf)))
+    rival = float(score[k])
+    if rival >= p.ambiguity_ratio * best:
+        dist = math.hypot(cand[k, 0] - dx, cand[k, 1] - dy)
+        return (f"ambiguous: a position {dist:.2f} m away ({cand[k, 0]:.2f}, {cand[k, 1]:.2f}) scores "
+                f"{rival:.3f} against {best:.3f} at the estimate (repetitive or featureless walls)")
+    return ""
 
 
 def _why(w_avg: float, s_avg: float, iterations: int, p: PFParams) -> str:

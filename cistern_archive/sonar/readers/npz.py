@@ -19,7 +19,8 @@ def read_npz(path: Path) -> ReadResult:
         if damaged is not None:
             raise ReaderError(str(path), f"unreadable .npz: member {damaged!r} fails its CRC check")
         scan = read_scan(path)
-    except (zipfile.BadZipFile, zlib.error, NotImplementedError, TypeError, AttributeError, KeyError, IndexError, ValueError,
-            OSError, EOFError) as exc:  # damaged zip/npy members fail inside zipfile and numpy in many ways
+    # damaged zip/npy members fail inside zipfile and numpy in many ways
+    except (zipfile.BadZipFile, zlib.error, NotImplementedError, TypeError, AttributeError, KeyError,
+            IndexError, ValueError, OSError, EOFError) as exc:
         raise ReaderError(str(path), f"unreadable .npz: {type(exc).__name__}: {exc}") from None
     return ReadResult(format="npz", scans=[scan], warnings=[])

@@ -22,8 +22,10 @@ on the next ``"BR"``), with a warning naming its file offset. Messages used:
 
 Geometry
 --------
-* Angle: gradians 0..399, clockwise from the head's forward mark seen from above; converted to the
-  sonar frame (CCW from forward, radians) as ``theta = -angle * 2 pi / 400`` wrapped to [-pi, pi).
+* Angle: gradians 0..399 increasing clockwise seen from above. Ping Viewer shows raw angle 200 straight
+  ahead (it adds a default offset of 200 gradians to the device angle, and its sectors are centred
+  there), so the sonar frame (CCW from forward, radians) is
+  ``theta = -(angle - 200) * 2 pi / 400`` wrapped to [-pi, pi).
 * Bin size: ``c * sample_period * 25 ns / 2`` with c = 1500 m/s; bin 0 starts at range 0.
 * Intensities are 8-bit (``full_scale`` 255).
 * Time: the file name's ``YYYYMMDD-hhmmssmmm`` (taken as UTC) plus each record's elapsed time; ``nan``
@@ -52,6 +54,7 @@ MAGIC_BYTES = struct.pack(">I", 2 * len(MAGIC)) + MAGIC.encode("utf-16-be")
 SAMPLE_TICK_S = 25e-9
 SPEED_OF_SOUND = 1500.0
 GRADIANS = 400
+ANGLE_AHEAD = 200
 PING360_BEAM_WIDTH_RAD = math.radians(2.2)
 MAX_PAYLOAD = 8192
 MAX_TIME_STRING = 128
@@ -164,24 +167,25 @@ def _resync(data: bytes, pos: int) -> int | None:
         q += 1
 
 
-def _read_chunks(data: bytes, pos: int, path: Path, warnings: list[str]) -> _Chunks:
+def _read_chunks(data: bytes, pos: int, path: Path, warnings: list[tuple[int, str]]) -> _Chunks:
     chunks = _Chunks(bytearray(), [], [], [])
     record = 0
     while pos < len(data):
         rec = _record_at(data, pos)
         if rec is None or rec[1] + rec[2] > len(data):
-            if rec is not None and rec[1] + rec[2] > len(data):
-                warnings.append(f"{path}: record {record}: byte offset {pos}: truncated: chunk of {rec[2]} bytes "
-                                f"has {len(data) - rec[1]}; kept what is there")
+            nxt = _resync(data, pos)
+            if rec is not None and nxt is None:  # the last chunk is cut short: keep what is there
+                warnings.append((pos, f"{path}: record {record}: byte offset {pos}: truncated: chunk of {rec[2]} "
+                                      f"bytes has {len(data) - rec[1]}; kept what is there"))
                 chunks.stream_starts.append(len(chunks.stream))
                 chunks.file_offsets.append(rec[1])
                 chunks.elapsed.append(rec[0])
                 chunks.stream += data[rec[1]:]
                 break
-            nxt = _resync(data, pos)
-            warnings.append(f"{path}: record {record}: byte offset {pos}: not a (time, bytes) record; "
-                            + (f"skipped {nxt - pos} bytes to the next record" if nxt is not None
-                               else f"ignored the last {len(data) - pos} bytes"))
+            problem = "not a (time, bytes) record" if rec is None else f"chunk length {rec[2]} overruns the file"
+            warnings.append((pos, f"{path}: record {record}: byte offset {pos}: {problem}; "
+                             + (f"skipped {nxt - pos} bytes to the next record" if nxt is not None
+                                else f"ignored the last {len(data) - pos} bytes")))
             if nxt is None:
                 break
             pos = nxt
@@ -292,13 +296,13 @@ def read_ping360(path: Path) -> ReadResult:
     except OSError as exc:
         raise ReaderError(str(path), f"cannot read: {exc.strerror or exc}") from exc
     pos, info = _parse_header(data, path)
-    warnings: list[str] = []
+    warnings: list[tuple[int, str]] = []  # (file offset, text)
     chunks = _read_chunks(data, pos, path, warnings)
     messages, skipped = decode_ping_stream(chunks.stream)
     for offset, length, reason in skipped:
         record, file_offset = chunks.locate(offset)
-        warnings.append(f"{path}: record {record}: byte offset {file_offset}: skipped {length} byte(s) of the "
-                        f"serial stream: {reason}")
+        warnings.append((file_offset, f"{path}: record {record}: byte offset {file_offset}: skipped {length} "
+                                      f"byte(s) of the serial stream: {reason}"))
     t0 = start_time_from_name(path)
     beams: list[Beam] = []
     fields_of: dict[int, dict[str, int]] = {}
@@ -308,10 +312,11 @@ def read_ping360(path: Path) -> ReadResult:
         result = _beam(msg)
         record, file_offset = chunks.locate(msg.offset)
         if isinstance(result, str):
-            warnings.append(f"{path}: record {record}: byte offset {file_offset}: beam skipped: {result}")
+            warnings.append((file_offset, f"{path}: record {record}: byte offset {file_offset}: beam skipped: "
+                                          f"{result}"))
             continue
         fields, samples = result
-        theta = -fields["angle"] * 2.0 * math.pi / GRADIANS
+        theta = -(fields["angle"] - ANGLE_AHEAD) * 2.0 * math.pi / GRADIANS
         theta = (theta + math.pi) % (2.0 * math.pi) - math.pi
         key = (samples.size, fields["sample_period"], fields["gain_setting"], fields["transmit_frequency"])
         beam = Beam(bearing_rad=theta, intensities=samples, timestamp=t0 + chunks.elapsed[record], key=key)
@@ -323,10 +328,11 @@ def read_ping360(path: Path) -> ReadResult:
 
     def template(first: Beam, sweep) -> ScanTemplate:
         fields = fields_of[id(first)]
-        settings = {**info, **fields, "speed_of_sound_m_s": SPEED_OF_SOUND,
+        settings = {**info, **fields, "speed_of_sound_m_s": SPEED_OF_SOUND, "angle_ahead": ANGLE_AHEAD,
                     "last_angle": fields_of[id(sweep[-1])]["angle"]}
-        return ScanTemplate(full_scale=255.0, bin_size_m=SPEED_OF_SOUND * fields["sample_period"] * SAMPLE_TICK_S / 2,
-                            sonar_model="Blue Robotics Ping360", beam_width_rad=PING360_BEAM_WIDTH_RAD,
-                            settings=settings)
+        bin_size = SPEED_OF_SOUND * fields["sample_period"] * SAMPLE_TICK_S / 2
+        return ScanTemplate(full_scale=255.0, bin_size_m=bin_size, sonar_model="Blue Robotics Ping360",
+                            beam_width_rad=PING360_BEAM_WIDTH_RAD, settings=settings)
 
-    return ReadResult(format="ping360", scans=beams_to_scans(beams, template), warnings=warnings)
+    ordered = [text for _, text in sorted(warnings, key=lambda item: item[0])]
+    return ReadResult(format="ping360", scans=beams_to_scans(beams, template), warnings=ordered)
