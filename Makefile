@@ -5,6 +5,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 CATALOG ?= catalog
 OUT ?= site
+# Content-addressed archive of the raw inputs (SQLite index, provenance events); see `cistern-archive verify`.
+ARCHIVE ?= .archive
 
 .PHONY: demo test test-slow test-all bench clean
 
@@ -15,7 +17,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/cistern-archive rebuild --catalog $(CATALOG) --out $(OUT)
+	$(BIN)/cistern-archive rebuild --catalog $(CATALOG) --out $(OUT) --archive $(ARCHIVE)
 	@echo "$(abspath $(OUT))/index.html"
 
 test: $(STAMP)

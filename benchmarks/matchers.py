@@ -1,7 +1,10 @@
 """Every installed matcher on the same simulated pairs, side by side.
 
-Pairs come from :mod:`cistern_archive.testing.pairs` (ray-cast rooms and winding galleries, 200-beam
-360° sweeps, range noise 2/5/10 cm, 5 % multipath outliers, 5 % drop-outs, compass error up to 20°).
+Pairs come from :mod:`cistern_archive.testing.pairs`: random cistern rooms (with pillars) and winding
+galleries (with niches), 200-beam 360° sweeps, range 2.5–8 m, compass error up to 20°. With
+``--sonar rays`` (default) the ranges are ideal rays with range noise 2/5/10 cm, 5 % multipath
+outliers and 5 % drop-outs; with ``--sonar simulator`` the scans come from the project's physical sonar
+simulator and the paper's beam segmentation.
 They are drawn into buckets by overlap (20–30, 30–50, 50–70, 70–90 %) and initial offset (the true
 translation a matcher must recover from a zero start: < 1 m or 1–2 m), plus ``no_overlap`` pairs from
 two different sites. Every matcher sees exactly the same pairs.
@@ -10,9 +13,19 @@ Per bucket: success rate (converged, translation error ≤ 0.10 m, yaw error ≤
 percentile translation error and median rotation error over converged pairs, median seconds, and the
 false success rate (converged with no overlap, or with an error above 0.5 m).
 
-External peers (the ``peers`` extra) are run when they import: Open3D's point-to-point ICP.
+External peers (the ``peers`` extra) are run when they import: Open3D's point-to-point ICP (from the
+zero pose; converged when fitness ≥ 0.5 and inlier RMSE ≤ 0.1 m) and OpenKarto's correlative scan
+matcher (``karto-scanmatcher``; 5 m search window, 0.03 m grid, ±25° yaw; converged when its response
+≥ ``KartoCorrelative.MIN_RESPONSE``). Their convergence rules are this script's, as neither library
+reports an honest flag of its own.
+
+``--gallery SITE`` instead compares the localizers on a simulated catalog site with truth poses
+(default ``water-gallery``, the 30 m gallery): for each matcher given with ``--gallery-matchers``, the
+``wls`` and ``pose-graph`` localizers each run on the pairs they ask for, and the position error of the
+placed scans against the truth (in the reference scan's compass frame) is reported.
 
     python benchmarks/matchers.py --quick --json
+    python benchmarks/matchers.py --gallery water-gallery --json
 """
 
 from __future__ import annotations
@@ -22,6 +35,7 @@ import json
 import math
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -29,25 +43,25 @@ from cistern_archive.pipeline.contracts import MatchResult
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.errors import PluginError
 from cistern_archive.sonar.scan import RangeScan
-from cistern_archive.testing.pairs import SimulatedPair, simulated_pair
+from cistern_archive.testing.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import score
 
 OVERLAPS = {"20_30": (0.2, 0.3), "30_50": (0.3, 0.5), "50_70": (0.5, 0.7), "70_90": (0.7, 0.9)}
 OFFSETS = {"lt_1m": (0.0, 1.0), "ge_1m": (1.0, 2.0)}
 
 
-def draw_buckets(n: int, seed: int) -> dict[str, list[SimulatedPair]]:
-    """``n`` pairs per bucket, all from one seeded generator."""
+def draw_buckets(n: int, seed: int, n_blind: int, spec: PairSpec) -> dict[str, list[SimulatedPair]]:
+    """``n`` pairs per bucket and ``n_blind`` no-overlap pairs, all from one seeded generator."""
     rng = np.random.default_rng(seed)
     buckets: dict[str, list[SimulatedPair]] = {}
     for oname, orange in OVERLAPS.items():
         for fname, frange in OFFSETS.items():
             try:
                 buckets[f"overlap_{oname}_offset_{fname}"] = [
-                    simulated_pair(rng, overlap_range=orange, offset_range_m=frange) for _ in range(n)]
+                    simulated_pair(rng, spec=spec, overlap_range=orange, offset_range_m=frange) for _ in range(n)]
             except RuntimeError as exc:  # e.g. 20-30 % overlap is (nearly) impossible within 1 m
                 print(f"bucket overlap_{oname}_offset_{fname} skipped: {exc}", file=sys.stderr)
-    buckets["no_overlap"] = [simulated_pair(rng, overlapping=False) for _ in range(2 * n)]
+    buckets["no_overlap"] = [simulated_pair(rng, spec=spec, overlapping=False) for _ in range(n_blind)]
     return buckets
 
 
@@ -80,6 +94,44 @@ class Open3DICP:
                            conv, 60, time.perf_counter() - start, "" if conv else "low fitness")
 
 
+class KartoCorrelative:
+    """OpenKarto's correlative scan matcher through ``karto-scanmatcher``."""
+
+    name = "karto-correlative"
+    MIN_RESPONSE = 0.15
+
+    def __init__(self) -> None:
+        import karto_scanmatcher as karto
+
+        self.karto = karto
+        cfg = karto.ScanMatcherConfig()
+        cfg.search_size = 5.0
+        cfg.resolution = 0.03
+        cfg.coarse_search_angle_offset = math.radians(25.0)
+        cfg.range_threshold = 20.0
+        self.config = cfg
+
+    def _scan(self, scan: RangeScan, num: int):
+        order = np.argsort(scan.bearings_rad, kind="stable")
+        b, r = scan.bearings_rad[order], scan.ranges_m[order]
+        res = float(np.median(np.diff(b)))
+        cfg = self.karto.LaserScanConfig(float(b[0]), float(b[-1]), res, 0.1, float(scan.max_range_m),
+                                         float(scan.max_range_m) - 0.01, "sonar")
+        ranges = np.where(np.isfinite(r), r, scan.max_range_m + 1.0).tolist()
+        pose = self.karto.Pose2(0.0, 0.0, float(scan.yaw_rad))
+        return self.karto.LocalizedRangeScan(cfg, ranges, pose, pose, num, 0.0)
+
+    def match(self, reference: RangeScan, moving: RangeScan) -> MatchResult:
+        start = time.perf_counter()
+        wrapper = self.karto.Wrapper(self.config)
+        res = wrapper.match_scan(self._scan(moving, 1), [self._scan(reference, 0)], True, True)
+        bp = res.best_pose
+        conv = bool(res.response >= self.MIN_RESPONSE)
+        dyaw = (bp.yaw - moving.yaw_rad + math.pi) % (2 * math.pi) - math.pi
+        return MatchResult(-1, -1, float(bp.x), float(bp.y), float(dyaw), float(res.response), conv, 1,
+                           time.perf_counter() - start, "" if conv else f"response {res.response:.2f}")
+
+
 def matchers() -> tuple[dict[str, object], dict[str, str]]:
     """Built-in and third-party matchers from the registry, plus the peers that import."""
     reg = default_registry()
@@ -91,11 +143,12 @@ def matchers() -> tuple[dict[str, object], dict[str, str]]:
             found[name] = lambda ref, mov, k, p=plugin: p.match(ref, mov, p.Params(), rng=np.random.default_rng(k))
         except PluginError as exc:
             missing[name] = str(exc)
-    try:
-        peer = Open3DICP()
-        found[peer.name] = lambda ref, mov, k, p=peer: p.match(ref, mov)
-    except Exception as exc:  # an optional dependency may fail in any way
-        missing["open3d-icp"] = f"{type(exc).__name__}: {exc}"
+    for cls in (Open3DICP, KartoCorrelative):
+        try:
+            peer = cls()
+            found[peer.name] = lambda ref, mov, k, p=peer: p.match(ref, mov)
+        except Exception as exc:  # an optional dependency may fail in any way
+            missing[cls.name] = f"{type(exc).__name__}: {exc}"
     return found, missing
 
 
@@ -115,10 +168,11 @@ def summarise(scores: list) -> dict[str, float]:
     }
 
 
-def run(n: int, seed: int) -> dict:
-    buckets = draw_buckets(n, seed)
+def run(n: int, seed: int, n_blind: int, sonar: str) -> dict:
+    buckets = draw_buckets(n, seed, n_blind, PairSpec(sonar=sonar))
     found, missing = matchers()
-    out: dict = {"matchers": {}, "unavailable": missing, "pairs_per_bucket": n, "seed": seed}
+    out: dict = {"matchers": {}, "unavailable": missing, "pairs_per_bucket": n, "no_overlap_pairs": n_blind,
+                 "seed": seed, "sonar": sonar, "buckets": {b: len(p) for b, p in buckets.items()}}
     for name, fn in found.items():
         per: dict[str, dict] = {}
         all_scores = []
@@ -140,6 +194,59 @@ def run(n: int, seed: int) -> dict:
     return out
 
 
+def rotate(v: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def gallery(site: str, matcher_names: list[str], catalog: Path) -> dict:
+    """Position error of ``wls`` and ``pose-graph`` on a simulated site, for each matcher."""
+    from cistern_archive.catalog.loader import load_record
+    from cistern_archive.pipeline.runner import load_scan, pair_rng
+    from cistern_archive.sonar.segmentation import segment
+
+    loaded = load_record(catalog / "sites" / f"{site}.yaml", catalog)
+    rec = loaded.record
+    scans = [segment(load_scan(loaded, ref), rec.segmentation) for ref in rec.scans]
+    truth = {t.station: t for t in rec.truth}
+    true_xy = np.array([[truth[r.station].x_m, truth[r.station].y_m] for r in rec.scans])
+    compass_err = [scans[k].yaw_rad - math.radians(truth[r.station].yaw_deg) for k, r in enumerate(rec.scans)]
+    reg = default_registry()
+    out: dict = {"site": site, "scans": len(scans), "results": {}}
+    for mname in matcher_names:
+        matcher = reg.load("matcher", mname).instance
+        cache: dict[tuple[int, int], MatchResult] = {}
+        for lname in ("wls", "pose-graph"):
+            loc = reg.load("localizer", lname).instance
+            lp = loc.Params()
+            start = time.perf_counter()
+            matches = []
+            for i, j in loc.pairs(len(scans), lp):
+                if (i, j) not in cache:
+                    r = matcher.match(scans[i], scans[j], matcher.Params(), rng=pair_rng(rec.seed, i, j))
+                    cache[(i, j)] = MatchResult(**{**r.__dict__, "i": i, "j": j})
+                matches.append(cache[(i, j)])
+            poses = loc.localize(scans, matches, lp)
+            seconds = time.perf_counter() - start
+            errs = []
+            if poses.reference >= 0:
+                ref = poses.reference
+                for k in range(len(scans)):
+                    if poses.placed[k]:
+                        expected = rotate(true_xy[k] - true_xy[ref], compass_err[ref])
+                        errs.append(float(np.hypot(*(poses.xy_m[k] - expected))))
+            out["results"][f"{mname}+{lname}"] = {
+                "placed": int(poses.placed.sum()),
+                "pairs": len(matches),
+                "pairs_converged": int(sum(m.converged for m in matches)),
+                "median_position_error_m": float(np.median(errs)) if errs else float("nan"),
+                "max_position_error_m": float(np.max(errs)) if errs else float("nan"),
+                "seconds": seconds,
+            }
+            print(f"{mname}+{lname}: {out['results'][f'{mname}+{lname}']}", file=sys.stderr)
+    return out
+
+
 def table(result: dict) -> str:
     rows = ["| matcher | bucket | success | median t (m) | p95 t (m) | median rot (°) | median s | false |",
             "|---|---|---|---|---|---|---|---|"]
@@ -155,12 +262,29 @@ def table(result: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="3 pairs per bucket (CI scale)")
-    ap.add_argument("--pairs", type=int, default=12, help="pairs per bucket (no_overlap gets twice as many)")
+    ap.add_argument("--quick", action="store_true", help="3 pairs per bucket, 6 without overlap (CI scale)")
+    ap.add_argument("--pairs", type=int, default=12, help="pairs per overlap/offset bucket")
+    ap.add_argument("--no-overlap-pairs", type=int, default=50, help="pairs from two different sites")
+    ap.add_argument("--sonar", choices=["rays", "simulator"], default="rays",
+                    help="rays: ideal rays + controlled noise levels; simulator: physical sonar simulator + "
+                         "the paper's segmentation")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    ap.add_argument("--gallery", metavar="SITE", help="compare wls and pose-graph on a simulated catalog site")
+    ap.add_argument("--gallery-matchers", default="pf-pairwise,correlative",
+                    help="comma-separated matchers for --gallery")
+    ap.add_argument("--catalog", type=Path, default=Path(__file__).resolve().parents[1] / "catalog")
     args = ap.parse_args(argv)
-    result = run(3 if args.quick else args.pairs, args.seed)
+    if args.gallery:
+        g = gallery(args.gallery, args.gallery_matchers.split(","), args.catalog)
+        for name, v in g["results"].items():
+            print(f"{name:28s} placed {v['placed']}/{g['scans']}  converged pairs {v['pairs_converged']}/{v['pairs']}  "
+                  f"median {v['median_position_error_m']:.3f} m  max {v['max_position_error_m']:.3f} m  "
+                  f"{v['seconds']:.1f} s")
+        if args.json:
+            print(json.dumps(g, allow_nan=True))
+        return 0
+    result = run(3 if args.quick else args.pairs, args.seed, 6 if args.quick else args.no_overlap_pairs, args.sonar)
     print(table(result))
     for name, why in result["unavailable"].items():
         print(f"unavailable: {name}: {why}")

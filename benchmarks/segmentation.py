@@ -9,7 +9,10 @@ segmented range of each beam is compared with the true range along the beam's ax
   (ghosts, the vehicle's own echo, clutter, spikes);
 * ``missed``: fraction of beams with no echo although the wall is within range.
 
-Both methods use each site's ``min_range_m`` and ``threshold``. On the real recordings in
+Both methods use each site's ``min_range_m`` and ``threshold``. ``vertical_walls`` pools the 2-D sites;
+in the bell-shaped cistern the vertical lobe also sees the walls above and below the sonar, which lean
+in and out, so its echoes are smeared over decimetres around the wall at the sonar's depth (the truth
+used here). On the real recordings in
 ``../shared/data`` (no truth) it reports the fraction of beams with an echo and the median range, and with
 ``--figures DIR`` writes fans of raw and segmented scans for both methods.
 
@@ -72,6 +75,7 @@ def simulated(seeds: int) -> dict:
     """Per site and overall summaries for both methods."""
     per_site: dict[str, dict] = {}
     pooled: dict[str, list] = {"paper": [], "cfar": []}
+    vertical: dict[str, list] = {"paper": [], "cfar": []}
     for spec_path in sorted((ROOT / "catalog" / "specs").glob("*.yaml")):
         base = load_spec(spec_path)
         site_errors: dict[str, list] = {"paper": [], "cfar": []}
@@ -84,7 +88,10 @@ def simulated(seeds: int) -> dict:
         per_site[base.id] = {m: summarise(v) for m, v in site_errors.items()}
         for m, v in site_errors.items():
             pooled[m].extend(v)
-    return {"all": {m: summarise(v) for m, v in pooled.items()}, "sites": per_site}
+            if len(base.site.levels) == 1:
+                vertical[m].extend(v)
+    return {"all": {m: summarise(v) for m, v in pooled.items()},
+            "vertical_walls": {m: summarise(v) for m, v in vertical.items()}, "sites": per_site}
 
 
 def real(figures: Path | None) -> dict:
@@ -129,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result, sort_keys=True))
         return 0
     print(f"{'site':16s} {'method':6s} {'beams':>6s} {'<=1 bin':>8s} {'median m':>9s} {'false':>7s} {'missed':>7s}")
-    rows = [("ALL", result["simulated"]["all"])] + list(result["simulated"]["sites"].items())
+    rows = [("ALL", result["simulated"]["all"]), ("vertical walls", result["simulated"]["vertical_walls"])]
+    rows += list(result["simulated"]["sites"].items())
     for site, methods in rows:
         for method, s in methods.items():
             print(f"{site:16s} {method:6s} {s['beams']:6d} {s['within_one_bin']:8.3f} "

@@ -9,6 +9,7 @@ Everything is computed from the geometry with a seeded generator; nothing depend
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -254,3 +255,26 @@ def make_site_build(
     )
     return SiteBuild(result=result, record=record, raw_scans=raw, range_scans=ranged, matches=matches,
                      poses=poses, map_result=map_result, table=table)
+
+
+SITES = {
+    "pool": dict(site_id="pool", name="Swimming pool"),
+    "bell": dict(site_id="bell", name="Bell cistern", slices=3, unplaced=True, redact=False),
+    "broken": dict(site_id="broken", name="Broken site", failed=True),
+}
+
+
+def render_catalog(root: Path) -> dict[str, dict[str, str]]:
+    """Render the synthetic sites of :data:`SITES` and the index under ``root``; artifacts per site."""
+    from cistern_archive.report import IndexEntry, render_index, render_site
+
+    artifacts = {}
+    entries = []
+    for key, kwargs in SITES.items():
+        site_dir = root / key
+        site_dir.mkdir(parents=True)
+        artifacts[key] = render_site(make_site_build(**kwargs), site_dir)
+        result = SiteResult.model_validate_json((site_dir / "result.json").read_text())
+        entries.append(IndexEntry.from_result(result, build_time="2024-01-01T00:00:00Z"))
+    render_index(entries, root)
+    return artifacts

@@ -116,12 +116,14 @@ def test_cfar_ignores_a_weak_early_echo_and_isolated_spikes():
     assert_allclose(segment(scan, CFAR).ranges_m, [31.5 * 0.05], atol=1e-9)
 
 
-def test_cfar_range_is_the_centroid_of_the_echo():
+def test_cfar_range_is_interpolated_within_the_bin():
     row = np.zeros(40, dtype=np.uint8)
-    row[10:13] = [100, 200, 200]
+    row[10:14] = [100, 200, 150, 20]
     scan = make_scan([row])
-    expected = (100 * 10.5 + 200 * 11.5 + 200 * 12.5) / 500 * 0.05
-    assert_allclose(segment(scan, CFAR).ranges_m, [expected])
+    offset = 0.5 * (100 - 150) / (100 - 400 + 150)  # parabola through 100, 200, 150: +1/6 bin
+    assert_allclose(segment(scan, CFAR).ranges_m, [(11.5 + offset) * 0.05])
+    symmetric = make_scan([np.array([0] * 10 + [100, 200, 100] + [0] * 10, dtype=np.uint8)])
+    assert_allclose(segment(symmetric, CFAR).ranges_m, [11.5 * 0.05])
 
 
 def test_cfar_rejects_a_step_in_a_noisy_background():

@@ -97,8 +97,8 @@ def test_paper_and_cfar_on_the_pool_site():
     assert len(site.scans) == 4
     assert spec.segmentation.method == "paper" and spec.segmentation.min_range_m == pytest.approx(0.4)
     for sim in site.scans:
-        assert fraction_within_one_bin(sim, spec.segmentation) > 0.75
-        assert fraction_within_one_bin(sim, spec.segmentation.model_copy(update={"method": "cfar"})) > 0.8
+        assert fraction_within_one_bin(sim, spec.segmentation) > 0.7
+        assert fraction_within_one_bin(sim, spec.segmentation.model_copy(update={"method": "cfar"})) > 0.75
 
 
 def test_near_field_defeats_the_paper_rule_without_blanking():
@@ -145,3 +145,48 @@ def test_depth_slices_interpolate():
 def test_probe_lengths_of_a_rectangle():
     lengths = probe_lengths(BOX, (3.0, 2.0), 90.0, 5, 0.5)
     np.testing.assert_allclose(lengths, 4.0)
+
+
+def test_vertical_lobe_on_a_vertical_wall_gives_slant_range():
+    from cistern_archive.sonar.simulator import lobe_hits
+
+    angles = np.array([0.0, math.pi / 2])
+    slant, cos_inc = lobe_hits(BOX, None, np.array([2.0, 1.0]), angles, 1.0, math.radians(10.0), None)
+    np.testing.assert_allclose(slant, np.array([4.0, 3.0]) / math.cos(math.radians(10.0)))
+    np.testing.assert_allclose(cos_inc, math.cos(math.radians(10.0)))
+    # Looking down at 30 deg from 1 m depth in 2 m of water: the floor comes first beyond 1.73 m.
+    slant, _ = lobe_hits(BOX, None, np.array([2.0, 1.0]), angles, 1.0, math.radians(30.0), 2.0)
+    assert np.all(np.isinf(slant))
+
+
+def test_sloping_walls_are_found_at_the_depth_the_ray_reaches():
+    from cistern_archive.sonar.simulator import lobe_hits
+
+    narrow = [np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])]
+    wide = [np.array([[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]])]
+    levels = [(0.0, narrow), (4.0, wide)]  # half-width 1 + depth / 2
+    mid = interpolate_slice(levels, 2.0)
+    down = math.radians(20.0)
+    slant, _ = lobe_hits(mid, levels, np.zeros(2), np.array([0.0]), 2.0, down, None, iterations=8)
+    # Solve h = 1 + (2 + h tan e) / 2 for the horizontal distance h.
+    h = 2.0 / (1.0 - math.tan(down) / 2.0)
+    assert slant[0] == pytest.approx(h / math.cos(down), abs=0.05)
+
+
+def test_bell_echoes_smear_around_the_wall():
+    spec = load_spec(CATALOG / "specs" / "bell-cistern.yaml")
+    sim = simulate_site(spec).scans[4]
+    truth = sim.truth_ranges_m
+    centres = sim.scan.bin_centres_m
+    bright = sim.scan.intensities >= 100
+    before = bright & (centres[None, :] < truth[:, None] - 0.2)
+    after = bright & (centres[None, :] > truth[:, None] + 0.2) & (centres[None, :] < truth[:, None] + 1.0)
+    # The inward-leaning walls above and the outward-leaning walls below both return.
+    assert before.any(axis=1).mean() > 0.5 and after.any(axis=1).mean() > 0.3
+
+
+def test_corridor_ring_has_constant_width():
+    ring = RingSpec(corridor=[(0.0, 0.0), (10.0, 0.0), (10.0, 8.0)], width_m=1.4).vertices()
+    lengths = probe_lengths([ring], (5.0, 0.0), 90.0, 5, 0.5)
+    np.testing.assert_allclose(lengths, 1.4)
+    np.testing.assert_allclose(probe_lengths([ring], (10.0, 4.0), 0.0, 3, 0.5), 1.4)

@@ -6,7 +6,8 @@ The bag's payload (``data/``):
   files, the simulator spec), copied from the archive's fixity-checked objects;
 - ``preservation/`` — open formats of everything derived (:mod:`cistern_archive.archive.preservation`);
 - ``report/`` — the HTML report with its figures, ``result.json`` and ``record.json``: the published
-  one when its build key is current, otherwise one rendered for the export;
+  one when its build key is current (with the report settings it was built with), otherwise one
+  rendered for the export;
 - ``config/resolved.json`` — the record with every plugin's parameters resolved to their defaults;
 - ``provenance/`` — the build key and what it covers, the result's provenance, the input digests and
   the archive's events for the site (PREMIS-style: ingest, digest, build, publish, fixity).
@@ -116,6 +117,7 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     from cistern_archive.archive.preservation import write_preservation
     from cistern_archive.pipeline.registry import default_registry
     from cistern_archive.pipeline.runner import build_site, write_site_result
+    from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site
     from cistern_archive.service.rebuild import is_current, plan_site, published_build
 
@@ -125,21 +127,24 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     bag.parent.mkdir(parents=True, exist_ok=True)
     staged = Path(tempfile.mkdtemp(prefix=f".{bag.name}.tmp-", dir=bag.parent))
     try:
+        site_dir = out / site_id
+        published = published_build(site_dir) or {}
+        report_config = (published.get("key_material") or {}).get("report") or None
         with Archive(Path(archive) if archive is not None else default_archive_dir(catalog)) as store:
-            plan = plan_site(loaded, store, registry, run_id=None)
+            plan = plan_site(loaded, store, registry, run_id=None, report_config=report_config)
             inputs = [dict(row) for row in store.index.site_inputs(site_id)]
             wanted = {loaded.path.resolve().relative_to(loaded.root).as_posix(), *plan.key.material["inputs"]}
             inputs = [row for row in inputs if row["relative_path"] in wanted]
             for row in inputs:
                 store.store.copy_out(row["sha256"], staged / "raw" / row["relative_path"])
             build = build_site(loaded, registry=registry)
-            site_dir = out / site_id
             if is_current(site_dir, plan.key.key):
                 shutil.copytree(site_dir, staged / "report")
-                report_source, built_at = f"published report {site_dir}", (published_build(site_dir) or {}).get("built_at")
+                report_source, built_at = f"published report {site_dir}", published.get("built_at")
             else:
+                (staged / "report").mkdir()
                 write_site_result(build, staged / "report")
-                render_site(build, staged / "report")
+                render_site(build, staged / "report", config=ReportConfig(**(report_config or {})))
                 report_source, built_at = "rendered for this export (no current published report)", None
             write_preservation(build, staged / "preservation")
             resolved = loaded.record.model_dump(mode="json")

@@ -42,6 +42,14 @@ class SonarModel:
         Whether beams without an echo free the cone up to the sonar's range.
     beam_width_rad : float or None
         Cone width; ``None`` uses each scan's own ``beam_width_rad``.
+    occupied_width_rad : float or None
+        Width of the part of the cone marked occupied at the echo range; ``None`` marks the whole cone
+        (the classic model), ``0`` only the cells within half a cell of the beam's axis (the echo as a
+        point: a wall seen at a grazing angle is not smeared across the cone into the open water).
+    free_width_rad : float or None
+        Width of the part of the cone marked free in front of the echo; ``None`` the whole cone. A
+        narrow free cone keeps a wall seen at a grazing angle from being carved out by the edges of the
+        cones of the beams that hit it a little farther on.
     """
 
     l_occ: float = 0.85
@@ -50,6 +58,8 @@ class SonarModel:
     clamp_max: float = 4.0
     free_no_echo: bool = False
     beam_width_rad: float | None = None
+    occupied_width_rad: float | None = None
+    free_width_rad: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,23 +168,31 @@ def _cone_update(
     idx = np.searchsorted(b_sorted, bear_in)
     m = _beam_window(b_sorted, half)
     free_no_echo_limit = float(scan.max_range_m) if model.free_no_echo else -np.inf
+    occ_half = _part_of_cone(model.occupied_width_rad, half, rho_in, cell_m)
+    free_half = _part_of_cone(model.free_width_rad, half, rho_in, cell_m)
     if 2 * m + 1 >= n:
         candidates = (np.full(idx.shape, k) for k in range(n))
     else:
         candidates = ((idx + k) % n for k in range(-m, m + 1))
     for beam in candidates:
         diff = np.abs((bear_in - b_sorted[beam] + np.pi) % (2 * np.pi) - np.pi)
-        in_cone = diff <= half
         r = r_sorted[beam]
         echo = np.isfinite(r)
         r_safe = np.where(echo, r, free_no_echo_limit)
-        free = in_cone & (rho_in < np.where(echo, r_safe - h, r_safe))
-        occ = in_cone & echo & (np.abs(rho_in - r_safe) <= h)
+        free = (diff <= free_half) & (rho_in < np.where(echo, r_safe - h, r_safe))
+        occ = (diff <= occ_half) & echo & (np.abs(rho_in - r_safe) <= h)
         out += np.where(free, np.float32(model.l_free), np.float32(0.0))
         out += np.where(occ, np.float32(model.l_occ), np.float32(0.0))
     delta = np.zeros(rho.shape, dtype=np.float32)
     delta[inside] = out
     return delta
+
+
+def _part_of_cone(width: float | None, half: float, rho: np.ndarray, cell_m: float) -> np.ndarray | float:
+    """Half-angle of the part of the cone a beam updates at each cell (at least half a cell wide)."""
+    if width is None:
+        return half
+    return np.minimum(half, np.maximum(0.5 * width, 0.5 * cell_m / np.maximum(rho, 1e-6)))
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,7 +17,7 @@ class ReportConfig(BaseModel):
     dpi: int = Field(default=100, ge=50, le=300, description="resolution of the matplotlib figures")
     thumbnail_px: int = Field(default=240, ge=64, le=800, description="width of the index thumbnail")
     max_pair_figures: int = Field(default=48, ge=0, description="pairs beyond this are listed but not drawn")
-    pairs_per_figure: int = Field(default=12, ge=1, le=48, description="pairs per convergence / particle montage")
+    pairs_per_figure: int = Field(default=16, ge=1, le=48, description="pairs per particle montage")
     max_fan_figures: int = Field(default=24, ge=0, description="scans beyond this are listed but not drawn")
     # 3D model
     model: bool = Field(default=True, description="build, render and export the 3D model")
@@ -29,5 +29,8 @@ class ReportConfig(BaseModel):
     iso_level: float = Field(default=0.6, gt=0, lt=1, description="occupancy probability of the isosurface")
     smooth_sigma_cells: float = Field(default=0.6, ge=0, description="Gaussian blur of the volume before meshing")
     smooth_iterations: int = Field(default=20, ge=0, description="Taubin smoothing passes of the mesh")
+    min_component_fraction: float = Field(
+        default=0.01, ge=0, lt=1, description="drop mesh pieces with fewer triangles than this share"
+    )
     max_faces: int = Field(default=25_000, ge=100, description="decimate the mesh down to this many triangles")
     max_page_bytes: int = Field(default=5_000_000, gt=0, description="budget of a site page with its images")

@@ -25,13 +25,13 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LinearSegmentedColormap
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.ticker import MaxNLocator
 
 from cistern_archive.pipeline.contracts import DimensionTable, EvidenceGrid, MatchResult, Poses
 from cistern_archive.report.files import save_figure, write_png
 from cistern_archive.sonar.scan import RangeScan, Scan
 
 rcParams["svg.hashsalt"] = "cistern-archive"
-rcParams["path.simplify"] = True
 
 PARTICLES = LinearSegmentedColormap.from_list("particles", ["#0b6623", "#3cb043", "#ffffff"])
 GRID_CMAP = "gray_r"
@@ -86,7 +86,7 @@ def _map_canvas(grid: EvidenceGrid | None, dpi: int) -> Figure:
         aspect = (y1 - y0) / max(x1 - x0, 1e-9)
     plot_h = 5.0 if aspect >= 0.6 else 3.2
     plot_w = float(np.clip(plot_h / aspect, 2.5, 7.5))
-    width, height = plot_w + 0.9 + 1.9, plot_h + 0.9
+    width, height = plot_w + 0.9 + 2.3, plot_h + 0.9
     return _figure(width, height, dpi, left=0.9 / width, right=(0.9 + plot_w) / width, bottom=0.55 / height,
                    top=1 - 0.35 / height)
 
@@ -181,36 +181,60 @@ def _grid_axes(n: int, dpi: int, *, cols: int = 4, panel_in: float = 2.5):
     return fig, axes[:n]
 
 
-def convergence_montage(
+def convergence_figure(
     path: Path, matches: Sequence[MatchResult], labels: Sequence[str], *, matcher_params: dict, dpi: int
 ) -> Figure:
-    """One small panel per pair: the weight average of eq. 6 (green, left axis) and the position-std
-    average of eq. 5 (red, right axis, metres) over the iterations, with τ_pw and r_c dotted."""
+    """The weight average of eq. 6 (left) and the position-std average of eq. 5 (right) of every pair
+    over the iterations, one line per pair: converged pairs in green, the others dashed magenta and
+    named at their last iteration; τ_pw and r_c dotted."""
     tau, r_c = _thresholds(matcher_params)
-    fig, axes = _grid_axes(len(matches), dpi)
-    for ax, match in zip(axes, matches):
-        _pair_title(ax, match, labels)
-        ax.tick_params(labelsize=6)
+    fig = _figure(10.0, 3.8, dpi, left=0.07, right=0.98, bottom=0.14, top=0.9, wspace=0.22)
+    left, right = fig.subplots(1, 2)
+    name_failures = sum(1 for m in matches if not m.converged) <= 8
+    for match in sorted(matches, key=lambda m: (m.converged, m.i, m.j), reverse=True):
         hist = match.history
         if hist is None or not len(hist.weight_avg):
-            ax.text(0.5, 0.5, "no history", ha="center", va="center", fontsize=7, transform=ax.transAxes)
-            ax.set_xticks([])
-            ax.set_yticks([])
             continue
         it = np.arange(1, len(hist.weight_avg) + 1)
-        ax.plot(it, hist.weight_avg, color="#1b7837", lw=1.4)
-        if tau is not None:
-            ax.axhline(tau, color="#1b7837", ls=":", lw=1.0)
-        twin = ax.twinx()
-        twin.plot(it, hist.std_avg, color="#b2182b", lw=1.4)
-        if r_c is not None:
-            twin.axhline(r_c, color="#b2182b", ls=":", lw=1.0)
-        twin.tick_params(labelsize=6, colors="#b2182b")
-        ax.tick_params(axis="y", colors="#1b7837")
-        ax.locator_params(nbins=4)
-        twin.locator_params(nbins=4)
+        style = dict(color=LINK_OK, lw=1.0, alpha=0.6) if match.converged else dict(color=LINK_BAD, lw=1.4, ls="--")
+        left.plot(it, hist.weight_avg, **style)
+        right.plot(it, hist.std_avg, **style)
+        if not match.converged and name_failures:
+            name = f"{labels[match.j]} in {labels[match.i]}"
+            left.annotate(name, (it[-1], hist.weight_avg[-1]), xytext=(3, 0), textcoords="offset points",
+                          fontsize=7, color=LINK_BAD, va="center")
+    if tau is not None:
+        left.axhline(tau, color="black", ls=":", lw=1.0)
+        left.annotate("τ_pw", (0.01, tau), xycoords=("axes fraction", "data"), xytext=(2, 2),
+                      textcoords="offset points", fontsize=8)
+    if r_c is not None:
+        right.axhline(r_c, color="black", ls=":", lw=1.0)
+        right.annotate("r_c", (0.01, r_c), xycoords=("axes fraction", "data"), xytext=(2, 2),
+                       textcoords="offset points", fontsize=8)
+    right.set_yscale("log")
+    left.set_title("Weight average (eq. 6)", fontsize=10)
+    right.set_title("Position std average (eq. 5), metres", fontsize=10)
+    for ax in (left, right):
+        ax.set_xlabel("iteration")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    left.legend(handles=[Line2D([], [], color=LINK_OK, lw=1.5, label="converged"),
+                         Line2D([], [], color=LINK_BAD, lw=1.5, ls="--", label="not converged")],
+                fontsize=8, loc="lower right")
     save_figure(fig, path, dpi=dpi)
     return fig
+
+
+def _scale_bar(ax, span_m: float, colour: str = "white") -> None:
+    """A round-length bar in the lower-left corner of a panel without tick labels."""
+    from cistern_archive.report.model3d import nice_length
+
+    length = nice_length(span_m)
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    x, y = x0 + 0.06 * (x1 - x0), y0 + 0.07 * (y1 - y0)
+    ax.plot([x, x + length], [y, y], color=colour, lw=2)
+    ax.text(x + length / 2, y + 0.03 * (y1 - y0), f"{length:g} m", color=colour, fontsize=6.5, ha="center",
+            va="bottom")
 
 
 def particles_montage(
@@ -230,10 +254,14 @@ def particles_montage(
     for ax, match, reference, truth in zip(axes, matches, references, truths):
         _pair_title(ax, match, labels)
         ax.set_facecolor("#111111")
-        ax.tick_params(labelsize=6)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        reach = 1.0
         if reference is not None:
             pts = reference.points()
             ax.plot(pts[:, 0], pts[:, 1], ".", ms=1.2, color="#9e9e9e")
+            if len(pts):
+                reach = max(reach, float(np.max(np.abs(pts))))
         snaps = match.history.snapshots if match.history is not None else ()
         for k, snap in enumerate(snaps):
             snap = np.asarray(snap)
@@ -244,10 +272,16 @@ def particles_montage(
                        alpha=0.25 + 0.75 * (k + 1) / len(snaps), linewidths=0, zorder=2)
         ax.scatter([0], [0], marker="*", s=70, c="#ffd92f", edgecolors="black", linewidths=0.5, zorder=4)
         if truth is not None:
+            reach = max(reach, abs(truth[0]) + 0.5, abs(truth[1]) + 0.5)
             ax.scatter([truth[0]], [truth[1]], s=40, facecolors="none", edgecolors="#00e5ff", lw=1.2, zorder=4)
         if math.isfinite(match.dx_m) and math.isfinite(match.dy_m):
             ax.scatter([match.dx_m], [match.dy_m], marker="x", s=36, c="#ff1744", lw=1.5, zorder=5)
-        ax.set_aspect("equal", adjustable="datalim")
+            reach = max(reach, abs(match.dx_m) + 0.5, abs(match.dy_m) + 0.5)
+        reach *= 1.1
+        ax.set_xlim(-reach, reach)
+        ax.set_ylim(-reach, reach)
+        ax.set_aspect("equal")
+        _scale_bar(ax, 2 * reach)
     save_figure(fig, path, dpi=dpi)
     return fig
 
@@ -263,29 +297,34 @@ def pair_figures(
     per_figure: int,
     dpi: int,
 ) -> list[tuple[FigureFile, list[int]]]:
-    """Convergence and particle montages, ``per_figure`` pairs each, in the order given.
+    """The convergence of every pair in one figure, and particle montages of ``per_figure`` pairs each.
 
     Returns
     -------
     list of (FigureFile, list of int)
         Each figure and the positions in ``matches`` of the pairs it shows.
     """
+    if not matches:
+        return []
     out: list[tuple[FigureFile, list[int]]] = []
+    conv = out_dir / "pairs-convergence.png"
+    convergence_figure(conv, matches, labels, matcher_params=matcher_params, dpi=dpi)
+    failed = [f"{labels[m.j]} in {labels[m.i]}" for m in matches if not m.converged]
+    out.append((FigureFile(
+        "pairs-convergence", conv.name, "Convergence of the pair matches",
+        f"Line charts of the particle filter's weight average and position spread over the iterations for "
+        f"{len(matches)} pairs; {len(failed)} did not converge",
+        "One line per pair. Left: exponential average of the particle weights (eq. 6), which must end above "
+        "τ_pw; right: exponential average of the particles' position spread (eq. 5, log scale), which must "
+        "end below r_c. Green: converged; dashed magenta: not converged, named 'moving in reference'"
+        + (f" ({', '.join(failed)})" if failed else "") + ". The pair table gives each pair's numbers."),
+        list(range(len(matches)))))
+    n_parts = math.ceil(len(matches) / per_figure)
     for start in range(0, len(matches), per_figure):
         chunk = list(range(start, min(start + per_figure, len(matches))))
         part = start // per_figure + 1
-        names = ", ".join(f"{labels[matches[k].i]} → {labels[matches[k].j]}" for k in chunk)
-        suffix = f" ({part} of {math.ceil(len(matches) / per_figure)})" if len(matches) > per_figure else ""
-        conv = out_dir / f"pairs-convergence-{part}.png"
-        convergence_montage(conv, [matches[k] for k in chunk], labels, matcher_params=matcher_params, dpi=dpi)
-        out.append((FigureFile(
-            f"pairs-convergence-{part}", conv.name, f"Convergence of the pair matches{suffix}",
-            f"Small multiples, one per pair ({names}): weight average and position standard-deviation average "
-            "of the particle filter over the iterations",
-            "Green, left axis: exponential average of the particle weights (eq. 6), dotted at τ_pw; red, right "
-            "axis: exponential average of the particle position spread in metres (eq. 5), dotted at r_c. "
-            "A pair converges when green stays above its line and red falls below its own. Titles read "
-            "'moving in reference'; magenta titles did not converge."), chunk))
+        suffix = f" ({part} of {n_parts})" if n_parts > 1 else ""
+        names = ", ".join(f"{labels[matches[k].j]} in {labels[matches[k].i]}" for k in chunk)
         parts = out_dir / f"pairs-particles-{part}.png"
         particles_montage(parts, [matches[k] for k in chunk], [references[k] for k in chunk], labels,
                           truths=[truths[k] for k in chunk], dpi=dpi)
@@ -293,15 +332,16 @@ def pair_figures(
             f"pairs-particles-{part}", parts.name, f"Particles of the pair matches{suffix}",
             f"Small multiples, one per pair ({names}): particles of the moving station over the reference "
             "station's echoes",
-            "Like Fig. 6 of the paper, in the reference station's frame (metres east and north of it): grey, the "
-            "reference scan's echoes (its map m_i); yellow star, the reference station; dots, the moving "
-            "station's particles from early (faint) to last, green to white as their weight grows; red cross, "
-            "the estimate; cyan ring, the true position when the site is simulated."), chunk))
+            "Like Fig. 6 of the paper, each panel is in the reference station's frame, north up, with its own "
+            "scale bar: grey, the reference scan's echoes (its map m_i); yellow star, the reference station; "
+            "dots, the moving station's particles from early (faint) to last, green to white as their weight "
+            "grows; red cross, the estimate; cyan ring, the true position when the site is simulated. "
+            "Magenta titles did not converge."), chunk))
     return out
 
 
 def fan_montage(
-    path: Path, scans: Sequence[Scan], ranged: Sequence[RangeScan | None], segmentation, *, dpi: int, pixels: int = 260
+    path: Path, scans: Sequence[Scan], ranged: Sequence[RangeScan | None], *, dpi: int, pixels: int = 260
 ) -> FigureFile:
     """One panel per scan: the raw intensities as a fan (sonar frame, forward up, like the head's own
     display; :func:`cistern_archive.sonar.fan.polar_to_cartesian`) with the segmented wall echoes of
@@ -319,17 +359,24 @@ def fan_montage(
             pts = ranges.points(yaw_rad=0.0)
             ax.plot(-pts[:, 1], pts[:, 0], ".", ms=1.0, color="#4fc3f7")
         ax.plot([0], [0], "+", color="white", ms=6)
+        reach = extent
+        if ranges is not None and ranges.valid.any():
+            reach = min(extent, 1.25 * float(np.nanmax(ranges.ranges_m)) + 0.5)
+        ax.set_xlim(-reach, reach)
+        ax.set_ylim(-reach, reach)
         ax.set_title(scan.station or "scan", fontsize=8)
-        ax.tick_params(labelsize=6)
+        ax.set_xticks([])
+        ax.set_yticks([])
         ax.set_aspect("equal")
+        _scale_bar(ax, 2 * reach)
     save_figure(fig, path, dpi=dpi)
     names = ", ".join(s.station or "scan" for s in scans)
     beams = sorted({s.n_beams for s in scans})
     return FigureFile(
         "fans", path.name, "Raw scans with their segmented echoes",
         f"Sonar fans of the scans {names}: raw echo intensity with the segmented wall echoes as dots",
-        "Each fan is one stationary 360° scan in the sonar's own frame, forward up, metres right and forward of "
-        "the head (white cross): colour is the raw echo intensity (dark weak, yellow strong); cyan dots are "
+        "Each fan is one stationary 360° scan in the sonar's own frame, forward up, centred on the head "
+        "(white cross), cropped to the farthest echo; the bar gives the scale. Colour is the raw echo intensity (dark weak, yellow strong); cyan dots are "
         f"the wall ranges the beam segmentation kept ({'/'.join(str(b) for b in beams)} beams per scan).")
 
 
@@ -358,7 +405,7 @@ def probe_figure(path: Path, grids: Sequence[EvidenceGrid], table: DimensionTabl
     for k, row in enumerate(table.rows):
         if row.probe_lines:
             handles.append(Line2D([], [], color=DIMENSION_COLOURS[k % len(DIMENSION_COLOURS)], lw=2,
-                                  label=f"{row.name}: {row.map_m:.3f} m ({len(row.probe_lines)} probes)"))
+                                  label=f"{row.name} ({row.reference_kind}): {row.map_m:.2f} m"))
     if handles:
         axes[-1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     save_figure(fig, path, dpi=dpi)

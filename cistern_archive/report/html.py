@@ -49,8 +49,11 @@ def signed(value: float | None, digits: int = 3) -> str:
 
 
 def number(value: float | None, digits: int = 3) -> str:
-    """Fixed-point number, ``—`` when missing."""
-    return format_number(value, digits) or "—"
+    """Fixed-point number with a true minus sign, ``—`` when missing."""
+    text = format_number(value, digits)
+    if not text:
+        return "—"
+    return "\u2212" + text[1:] if text.startswith("-") and float(text) != 0 else text.lstrip("-")
 
 
 @functools.lru_cache(maxsize=4)

@@ -67,7 +67,7 @@ class IndexEntry:
         """
         if thumbnail is None and "thumbnail" in result.artifacts:
             thumbnail = f"{result.site_id}/{result.artifacts['thumbnail']}"
-        when = build_time if isinstance(build_time, str) else format_time(build_time)
+        when = format_time(_parse_time(build_time)) if isinstance(build_time, str) else format_time(build_time)
         return cls(
             site_id=result.site_id,
             name=result.name,
@@ -82,11 +82,33 @@ class IndexEntry:
         )
 
 
+def _parse_time(text: str) -> dt.datetime | None:
+    """An ISO 8601 time (``Z`` or an offset; naive means UTC), or ``None`` when empty or unreadable."""
+    text = text.strip()
+    if not text:
+        return None
+    try:
+        return dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        return None
+
+
+def _preferred(dimensions: Sequence[DimensionResult]) -> dict[str, DimensionResult]:
+    """One dimension per name: the one measured against a mosaic when both kinds exist (Table IV
+    compares grid and mosaic), else the tape-measure one."""
+    chosen: dict[str, DimensionResult] = {}
+    for d in dimensions:
+        if d.name not in chosen or (chosen[d.name].reference_kind != "mosaic" and d.reference_kind == "mosaic"):
+            chosen[d.name] = d
+    return chosen
+
+
 def difference_table(entries: Sequence[IndexEntry]) -> tuple[list[str], list[dict]]:
     """Columns (dimension names in order of first appearance) and one row per site with dimensions.
 
     A cell is the signed difference map − reference in metres, marked † when the reference is a tape
-    measure (``truth``) rather than a mosaic; ``—`` when the site does not have that dimension.
+    measure (``truth``) rather than a mosaic (a mosaic reference is preferred when a site has both);
+    ``—`` when the site does not have that dimension or it could not be measured.
     """
     columns: list[str] = []
     for entry in entries:
@@ -97,7 +119,7 @@ def difference_table(entries: Sequence[IndexEntry]) -> tuple[list[str], list[dic
     for entry in entries:
         if not entry.dimensions:
             continue
-        by_name = {d.name: d for d in entry.dimensions}
+        by_name = _preferred(entry.dimensions)
         cells = []
         for name in columns:
             d = by_name.get(name)

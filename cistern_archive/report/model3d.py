@@ -92,6 +92,7 @@ def build_mesh(volume: Volume, config: ReportConfig):
     mesh = isosurface(volume, level=config.iso_level, sigma_cells=config.smooth_sigma_cells)
     if mesh is None or mesh.n_cells == 0:
         return None
+    mesh = drop_specks(mesh, config.min_component_fraction)
     if config.smooth_iterations:
         mesh = mesh.smooth_taubin(n_iter=config.smooth_iterations, pass_band=0.1)
     if mesh.n_cells > config.max_faces:
@@ -99,6 +100,22 @@ def build_mesh(volume: Volume, config: ReportConfig):
     mesh = mesh.compute_normals(cell_normals=False, point_normals=True, split_vertices=False, auto_orient_normals=False)
     mesh.point_data["depth_m"] = (-mesh.points[:, 2]).astype(np.float32)
     return mesh
+
+
+def drop_specks(mesh, min_fraction: float):
+    """Remove connected pieces smaller than ``min_fraction`` of the mesh's triangles: isolated
+    echoes (multipath, fish, the vehicle's tether) would otherwise stand as thin columns in the model."""
+    if min_fraction <= 0 or mesh.n_cells == 0:
+        return mesh
+    labelled = mesh.connectivity("all")
+    regions = np.asarray(labelled.cell_data["RegionId"])
+    sizes = np.bincount(regions)
+    keep = np.flatnonzero(sizes >= min_fraction * mesh.n_cells)
+    if len(keep) == len(sizes):
+        return mesh
+    kept = labelled.extract_cells(np.flatnonzero(np.isin(regions, keep))).extract_surface(algorithm="dataset_surface")
+    kept.clear_data()
+    return kept
 
 
 def nice_length(span_m: float) -> float:

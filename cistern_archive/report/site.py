@@ -217,8 +217,7 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
     scans = build.raw_scans[: config.max_fan_figures]
     if scans:
         ranged = [build.range_scans[k] if k < len(build.range_scans) else None for k in range(len(scans))]
-        out["fans"] = [fig.fan_montage(site_dir / "fans.png", scans, ranged,
-                                       getattr(build.record, "segmentation", None), dpi=config.dpi)]
+        out["fans"] = [fig.fan_montage(site_dir / "fans.png", scans, ranged, dpi=config.dpi)]
     out["fans_not_drawn"] = max(0, len(build.raw_scans) - config.max_fan_figures)
     return out
 
@@ -279,6 +278,8 @@ def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
     for key in sorted(stats):
         value = stats[key]
         label = key.replace("_", " ").capitalize()
+        if key.endswith("_m"):
+            label = label[:-2] + " (m)"
         if "percent" in key or key.endswith("_pct"):
             text = "—" if value is None else f"{number(value, 2)} %"
             label = label.replace(" pct", "")

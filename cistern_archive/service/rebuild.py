@@ -155,7 +155,7 @@ def _log_outcome(log: RunLog, outcome: SiteOutcome) -> None:
 def index_entries(out: Path, site_ids: list[str], statuses: dict[str, str]):
     """One :class:`~cistern_archive.report.IndexEntry` per published site, in site-id order."""
     from cistern_archive.pipeline.results import SiteResult
-    from cistern_archive.report import IndexEntry
+    from cistern_archive.report.index import IndexEntry
 
     entries = []
     for site_id in sorted(site_ids):
@@ -180,7 +180,7 @@ def write_index(out: Path, site_ids: list[str], statuses: dict[str, str]) -> Pat
     import shutil
     import tempfile
 
-    from cistern_archive.report import render_index
+    from cistern_archive.report.index import render_index
 
     staging = Path(tempfile.mkdtemp(prefix=".index.tmp-", dir=out))
     try:

@@ -26,7 +26,7 @@ def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None
             "name": f"s{k + 1}",
             "x_m": float(np.round(x, 2)),
             "y_m": float(np.round(width / 2 + rng.uniform(-0.3, 0.3), 2)),
-            "yaw_deg": float(np.round(rng.uniform(-180.0, 180.0), 1)),
+            "yaw_deg": float(np.round(rng.uniform(-20.0, 20.0) + 180.0 * rng.integers(0, 2), 1)),
             "depth_m": float(np.round(rng.uniform(1.0, 1.4), 2)),
         })
     inside = [float(np.round(length / 2, 2)), float(np.round(width / 2, 2))]  # site frame
@@ -38,7 +38,10 @@ def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None
         "location": {"place": "simulated", "redact": True},
         "seed": int(rng.integers(0, 2**31)),
         "site": {"water_depth_m": 2.0, "levels": [{"depth_m": 0.0, "walls": {"rectangle": [0.0, 0.0, length, width]}}]},
-        "sonar": {"range_m": 8.0, "bins": 200, "step_deg": 0.9},
+        "sonar": {"model": "Tritech Micron DST", "frequency_khz": 700, "range_m": 8.0, "bins": 200, "step_deg": 0.9,
+                  "beam_width_deg": 3.0},
+        "effects": {"compass_bias_deg": 2.0, "compass_sigma_deg": 1.0},
+        "segmentation": {"method": "paper", "threshold": 50, "min_range_m": 0.4},
         "stations": station_list,
         "references": [
             {"name": "width", "kind": "truth", "value_m": width,

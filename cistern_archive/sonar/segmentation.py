@@ -34,7 +34,8 @@ Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        detection starts the wall echo (the contiguous run of detections from there; its peak is the
        run's maximum): later, possibly stronger, echoes are multipath ghosts (the direct path is the
        shortest);
-    6. the range is the intensity-weighted centroid of the raw bins around that echo's peak (sub-bin).
+    6. the range is sub-bin: the raw maximum next to the echo's peak, refined by a parabola through it and
+       its neighbours (a Gaussian fit, the intensities being log-compressed).
 
 Both return a :class:`~cistern_archive.sonar.scan.RangeScan`. The CFAR constants below were chosen on
 simulated scans whose seeds are not those of the bundled catalog; ``benchmarks/segmentation.py`` compares
@@ -181,21 +182,24 @@ def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarra
     return peaks
 
 
-def _centroid_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Intensity-weighted centroid of bins ``peak - 1 .. peak + 1`` of each beam (nan where peak is -1)."""
-    n_bins = values.shape[1]
+def _interpolated_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndarray, bin_size: float) -> np.ndarray:
+    """Sub-bin echo ranges: the raw maximum next to each peak, refined by a parabola through it and its
+    two neighbours (intensities are log-compressed, so this is a Gaussian fit); nan where peak is -1."""
+    n_beams, n_bins = values.shape
     ranges = np.full(peaks.shape, np.nan)
     ok = peaks >= 0
     if not ok.any():
         return ranges
     beams = np.flatnonzero(ok)
-    offsets = np.array([-1, 0, 1])
-    idx = np.clip(peaks[ok][:, None] + offsets[None, :], 0, n_bins - 1)
-    weights = values[beams[:, None], idx]
-    total = weights.sum(axis=1)
-    centroid = np.where(total > 0, (weights * centres[idx]).sum(axis=1) / np.where(total > 0, total, 1),
-                        centres[peaks[ok]])
-    ranges[ok] = centroid
+    near = np.clip(peaks[ok][:, None] + np.array([-1, 0, 1])[None, :], 0, n_bins - 1)
+    top = near[np.arange(beams.size), np.argmax(values[beams[:, None], near], axis=1)]
+    left = values[beams, np.clip(top - 1, 0, n_bins - 1)]
+    mid = values[beams, top]
+    right = values[beams, np.clip(top + 1, 0, n_bins - 1)]
+    curvature = left - 2 * mid + right
+    inner = (top > 0) & (top < n_bins - 1) & (curvature < 0)
+    offset = np.where(inner, 0.5 * (left - right) / np.where(inner, curvature, -1.0), 0.0)
+    ranges[ok] = centres[top] + np.clip(offset, -0.5, 0.5) * bin_size
     return ranges
 
 
@@ -229,7 +233,7 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
     peaks = peak_bins(scan, settings)
     centres = scan.bin_centres_m
     if settings.method == "cfar":
-        ranges = _centroid_ranges(_blank_near(scan, settings.min_range_m), peaks, centres)
+        ranges = _interpolated_ranges(_blank_near(scan, settings.min_range_m), peaks, centres, scan.bin_size_m)
     else:
         ranges = np.where(peaks >= 0, centres[np.clip(peaks, 0, None)] if centres.size else np.nan, np.nan)
     return RangeScan(

@@ -4,12 +4,13 @@ The model of one stationary 360° scan (all levels in dB re an arbitrary source 
 
 * **Beam**: the head steps ``step_deg`` clockwise (seen from above), so bearings in the sonar frame
   (counter-clockwise, see :mod:`cistern_archive.sonar.scan`) decrease. Each beam is ``sub_rays`` x
-  ``vertical_rays`` rays across Gaussian two-way patterns of full width at half maximum
-  ``beam_width_deg`` (horizontal) and ``vertical_beam_width_deg`` (vertical). A ray at elevation ``e``
+  ``vertical_rays`` rays across Gaussian two-way patterns (the square of one-way patterns whose -3 dB
+  widths are ``beam_width_deg`` horizontally and ``vertical_beam_width_deg`` vertically). A ray at elevation ``e``
   meets the wall at the horizontal distance ``h`` where the walls of the depth ``d + h tan e`` are
   (walls change with depth in 3-D sites: found by fixed-point iteration over interpolated slices,
   :mod:`cistern_archive.sonar.geometry`), at slant range ``h / cos e``; rays reaching the floor or the
-  surface first give no wall echo. Vertical walls therefore give a sharp leading edge with a short tail,
+  surface first give no wall echo. Elevations are stratified: each beam draws its own elevation within
+  each of the ``vertical_rays`` cells, so sloping walls smear smoothly instead of in rings. Vertical walls therefore give a sharp leading edge with a short tail,
   and sloping (bell-shaped) walls a longer smear.
 * **Echo** of a ray hitting a wall at range ``r`` with incidence cosine ``c``:
   ``BS(c) - n_s log10 r - 2 a r`` with backscatter ``BS = 10 log10(c^2 + roughness)`` (Lambert-like), two-way
@@ -119,22 +120,26 @@ def beam_bearings(sonar: SonarSpec) -> np.ndarray:
 
 
 def _pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-ray angular offsets (rad) and their two-way Gaussian pattern weights (summing to 1)."""
+    """Sub-ray angular offsets (rad) and their two-way Gaussian pattern weights (summing to 1).
+
+    ``beam_width_deg`` is the one-way -3 dB width; the two-way pattern is the one-way pattern squared.
+    """
     width = math.radians(sonar.beam_width_deg)
     if sonar.sub_rays == 1:
         return np.zeros(1), np.ones(1)
-    offsets = np.linspace(-1.2 * width, 1.2 * width, sonar.sub_rays)
-    weights = np.exp(-4.0 * math.log(2.0) * (offsets / width) ** 2)
+    offsets = np.linspace(-width, width, sonar.sub_rays)
+    weights = np.exp(-8.0 * math.log(2.0) * (offsets / width) ** 2)
     return offsets, weights / weights.sum()
 
 
 def _vertical_pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Elevation offsets (rad) and two-way Gaussian weights (summing to 1) across the vertical lobe."""
+    """Elevation offsets (rad) and two-way Gaussian weights (summing to 1) across the vertical lobe
+    (``vertical_beam_width_deg`` one-way -3 dB, squared for two ways)."""
     width = math.radians(sonar.vertical_beam_width_deg)
     if sonar.vertical_rays == 1:
         return np.zeros(1), np.ones(1)
-    offsets = np.linspace(-0.6 * width, 0.6 * width, sonar.vertical_rays)
-    weights = np.exp(-4.0 * math.log(2.0) * (offsets / width) ** 2)
+    offsets = np.linspace(-0.75 * width, 0.75 * width, sonar.vertical_rays)
+    weights = np.exp(-8.0 * math.log(2.0) * (offsets / width) ** 2)
     return offsets, weights / weights.sum()
 
 
@@ -143,7 +148,8 @@ DEPTH_STEP_M = 0.05
 
 def lobe_hits(
     rings: Slice, levels: list[tuple[float, Slice]] | None, origin: np.ndarray, angles: np.ndarray,
-    depth_m: float, elevation: float, water_depth_m: float | None, *, iterations: int = 3,
+    depth_m: float, elevation: np.ndarray | float, water_depth_m: float | None, *, iterations: int = 5,
+    level_hits: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Slant range and incidence cosine of rays at ``elevation`` (rad, positive down) to the walls.
 
@@ -155,18 +161,22 @@ def lobe_hits(
         The site's levels when walls change with depth; ``None`` for vertical walls.
     origin, angles, depth_m :
         Where the head is and the rays' map-frame directions.
-    elevation : float
+    elevation : float or ndarray, shape angles.shape
         Ray elevation below the horizontal.
     water_depth_m : float, optional
         Rays meeting the floor (or the surface, depth 0) before a wall return ``inf``.
+    level_hits : (ndarray, ndarray), optional
+        ``ray_cast(origin, angles, rings)`` if already computed.
 
     Returns
     -------
     slant_m, cos_incidence : ndarray, shape angles.shape
     """
-    horizontal, cosines = ray_cast(origin, angles, rings)
-    tan_e = math.tan(elevation)
-    if levels is not None and len(levels) > 1 and elevation != 0.0:
+    horizontal, cosines = ray_cast(origin, angles, rings) if level_hits is None else (
+        level_hits[0].copy(), level_hits[1].copy())
+    elevation = np.broadcast_to(np.asarray(elevation, dtype=np.float64), horizontal.shape)
+    tan_e = np.tan(elevation)
+    if levels is not None and len(levels) > 1 and np.any(elevation != 0.0):
         for _ in range(iterations):
             depth = depth_m + np.where(np.isfinite(horizontal), horizontal, 0.0) * tan_e
             quantised = np.round(np.clip(depth, 0.0, None) / DEPTH_STEP_M) * DEPTH_STEP_M
@@ -177,8 +187,8 @@ def lobe_hits(
     ok = np.isfinite(horizontal) & (hit_depth >= 0.0)
     if water_depth_m is not None:
         ok &= hit_depth <= water_depth_m
-    slant = np.where(ok, horizontal / math.cos(elevation), np.inf)
-    return slant, np.where(ok, cosines * math.cos(elevation), 0.0)
+    slant = np.where(ok, horizontal / np.cos(elevation), np.inf)
+    return slant, np.where(ok, cosines * np.cos(elevation), 0.0)
 
 
 def _bin_fractions(ranges: np.ndarray, edges: np.ndarray, sigma: float) -> np.ndarray:
@@ -191,14 +201,31 @@ def _echo_profiles(
     ranges: np.ndarray, cosines: np.ndarray, weights: np.ndarray, sonar: SonarSpec, effects: EffectsSpec,
     edges: np.ndarray,
 ) -> np.ndarray:
-    """Pre-TVG echo power per beam and bin from sub-rays, shape (A, B)."""
-    hit = np.isfinite(ranges) & (ranges < edges[-1] + 3 * sonar.pulse_length_m)
-    r = np.where(hit, ranges, edges[-1] * 10.0)
-    backscatter = cosines**2 + effects.wall_roughness
+    """Pre-TVG echo power per beam and bin from sub-rays, shape (A, B).
+
+    Each sub-ray's pulse is spread over the bins within 4 standard deviations of its range (the rest of
+    a Gaussian is below 1e-4 of it).
+    """
+    n_beams, n_rays = ranges.shape
+    n_bins = edges.size - 1
+    bin_size = edges[1] - edges[0]
+    sigma = sonar.pulse_length_m / 2.0
+    hit = np.isfinite(ranges) & (ranges < edges[-1] + 4 * sigma)
+    beam_idx = np.broadcast_to(np.arange(n_beams)[:, None], ranges.shape)[hit]
+    r = ranges[hit]
+    backscatter = cosines[hit] ** 2 + effects.wall_roughness
     loss_db = sonar.spreading_exponent * np.log10(np.maximum(r, 1e-3)) + 2.0 * sonar.absorption_db_per_m * r
-    power = np.where(hit, weights[None, :] * backscatter * _db_to_power(-loss_db), 0.0)
-    fractions = _bin_fractions(r, edges, sonar.pulse_length_m / 2.0)
-    return np.einsum("as,asb->ab", power, fractions)
+    power = np.broadcast_to(weights[None, :], ranges.shape)[hit] * backscatter * _db_to_power(-loss_db)
+    reach = int(math.ceil(4 * sigma / bin_size)) + 1
+    first = np.floor(r / bin_size).astype(np.int64) - reach
+    out = np.zeros(n_beams * n_bins)
+    for step in range(2 * reach + 1):
+        k = first + step
+        ok = (k >= 0) & (k < n_bins)
+        lo = (edges[0] + k[ok] * bin_size - r[ok]) / sigma
+        fraction = ndtr(lo + bin_size / sigma) - ndtr(lo)
+        np.add.at(out, beam_idx[ok] * n_bins + k[ok], power[ok] * fraction)
+    return out.reshape(n_beams, n_bins)
 
 
 def _tvg_gain(centres: np.ndarray, sonar: SonarSpec) -> np.ndarray:
@@ -303,9 +330,14 @@ def simulate_scan(
     origin = np.array([pose.x_m, pose.y_m])
     beam_angles = pose.yaw_rad + bearings
     ray_angles = (beam_angles[:, None] + offsets[None, :]).ravel()
+    level_hits = ray_cast(origin, ray_angles, rings)
+    cell = (elevations[1] - elevations[0]) if elevations.size > 1 else 0.0
     slant, cos_inc = [], []
     for elevation in elevations:
-        r, c = lobe_hits(rings, levels, origin, ray_angles, pose.depth_m, float(elevation), water_depth_m)
+        jitter = rng.uniform(-cell / 2, cell / 2, size=bearings.size) if cell else np.zeros(bearings.size)
+        per_ray = np.repeat(elevation + jitter, offsets.size)
+        r, c = lobe_hits(rings, levels, origin, ray_angles, pose.depth_m, per_ray, water_depth_m,
+                         level_hits=level_hits)
         slant.append(r.reshape(bearings.size, offsets.size))
         cos_inc.append(c.reshape(bearings.size, offsets.size))
     ranges = np.concatenate(slant, axis=1)

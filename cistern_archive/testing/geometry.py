@@ -23,11 +23,15 @@ class Environment:
         ``"room"`` or ``"gallery"``.
     free_points : ndarray, shape (F, 2)
         Candidate station positions well inside the free space (at least 0.4 m from any wall).
+    rings : tuple of ndarray
+        The same walls as closed vertex rings (K, 2), the form :mod:`cistern_archive.sonar.simulator`
+        takes.
     """
 
     walls: np.ndarray
     kind: str
     free_points: np.ndarray
+    rings: tuple[np.ndarray, ...] = ()
 
 
 def cast_rays(origin: np.ndarray, angles: np.ndarray, walls: np.ndarray) -> np.ndarray:
@@ -121,7 +125,7 @@ def random_room(rng: np.random.Generator) -> Environment:
         walls.append(_box_walls(r * np.cos(a), r * np.sin(a), rng.uniform(0.15, 0.35), rng.uniform(0, np.pi)))
     all_walls = np.concatenate(walls)
     free = _free_points(all_walls, (-6, 6, -6, 6), rng)
-    return Environment(all_walls, "room", free)
+    return Environment(all_walls, "room", free, tuple(w[:, :2] for w in walls))
 
 
 def random_gallery(rng: np.random.Generator, length_m: float = 24.0) -> Environment:
@@ -158,7 +162,7 @@ def random_gallery(rng: np.random.Generator, length_m: float = 24.0) -> Environm
     walls = _polygon_walls(outline)
     lo, hi = outline.min(axis=0), outline.max(axis=0)
     free = _free_points(walls, (lo[0], hi[0], lo[1], hi[1]), rng, n=800)
-    return Environment(walls, "gallery", free)
+    return Environment(walls, "gallery", free, (outline,))
 
 
 def random_environment(rng: np.random.Generator) -> Environment:

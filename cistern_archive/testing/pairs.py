@@ -4,10 +4,20 @@ A pair is two :class:`~cistern_archive.sonar.scan.RangeScan` taken at two statio
 site (or of two different sites, for pairs with no overlap), with the true displacement
 ``d = p_moving - p_reference`` and the true yaw correction of the moving scan's compass.
 
-Sonar model: a full 360° sweep of ``n_beams`` beams cast against the walls, Gaussian range noise
-(``noise_m``), a fraction of multipath outliers (a uniformly random range before the wall, as
-Silver et al. simulate on ~10 % of readings) and drop-outs (no echo). The reference compass is exact;
-the moving compass is off by ``yaw_error_rad``, so the true correction is ``-yaw_error_rad``.
+Two sonar models (``PairSpec.sonar``):
+
+* ``"simulator"``: the project's physical sonar simulator
+  (:func:`cistern_archive.sonar.simulator.simulate_scan`: beam patterns, speckle, multipath ghosts,
+  reverberation, 8-bit AD conversion) followed by the pipeline's beam segmentation
+  (:func:`cistern_archive.sonar.segmentation.segment`, the paper's method), so matchers see the
+  ranges they will see in a site build. ``noise_m`` then only labels the pair; the noise is the
+  simulator's.
+* ``"rays"`` (default): ideal rays with Gaussian range noise (``noise_m``), a fraction of multipath outliers (a
+  uniformly random range before the wall, as Silver et al. simulate on ~10 % of readings) and
+  drop-outs; fast, and the noise level is controlled exactly.
+
+The reference compass is exact; the moving compass is off by ``yaw_error_rad``, so the true
+correction is ``-yaw_error_rad``.
 
 The overlap of a pair is the smaller of the two fractions of one scan's true wall points that the
 other station sees (in range, not occluded).
@@ -73,6 +83,23 @@ def simulate_range_scan(env: Environment, position: np.ndarray, yaw_rad: float, 
                      max_range_m=max_range_m, bin_size_m=0.05, beam_width_rad=math.radians(3.0), station=station)
 
 
+def simulate_sonar_scan(env: Environment, position: np.ndarray, yaw_rad: float, *, compass_yaw_rad: float,
+                        max_range_m: float, step_deg: float, rng: np.random.Generator, station: str = "") -> RangeScan:
+    """One sweep through the physical simulator and the paper's segmentation (see module docstring)."""
+    from cistern_archive.catalog.models import Segmentation
+    from cistern_archive.sonar.segmentation import segment
+    from cistern_archive.sonar.simulator import TruePose, simulate_scan
+    from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec
+
+    sonar = SonarSpec(range_m=max_range_m, bins=int(round(max_range_m / 0.04)), step_deg=step_deg,
+                      sub_rays=5, vertical_rays=5)
+    effects = EffectsSpec(compass_sigma_deg=0.0, compass_bias_deg=0.0, depth_sigma_m=0.0)
+    pose = TruePose(station, float(position[0]), float(position[1]), float(yaw_rad), 1.0)
+    sim = simulate_scan(list(env.rings), pose, sonar, effects, rng, water_depth_m=3.0)
+    rs = segment(sim.scan.replace(yaw_rad=float(compass_yaw_rad)), Segmentation(method="paper", min_range_m=0.4))
+    return rs
+
+
 def pair_overlap(env: Environment, p_ref: np.ndarray, p_mov: np.ndarray, max_range_m: float,
                  n_beams: int = 360) -> float:
     """The smaller of the two co-visible fractions of true wall points (see module docstring)."""
@@ -99,6 +126,7 @@ class PairSpec:
     dropout_fraction: float = 0.05
     max_offset_m: float = 2.0
     max_yaw_error_deg: float = 20.0
+    sonar: str = "rays"
 
 
 def simulated_pair(rng: np.random.Generator, *, spec: PairSpec = PairSpec(), overlapping: bool = True,
@@ -148,10 +176,17 @@ def simulated_pair(rng: np.random.Generator, *, spec: PairSpec = PairSpec(), ove
             overlap = 0.0
         yaw_ref = float(rng.uniform(-np.pi, np.pi))
         yaw_mov = float(rng.uniform(-np.pi, np.pi))
-        common = dict(n_beams=spec.n_beams, max_range_m=max_range, noise_m=noise,
-                      outlier_fraction=spec.outlier_fraction, dropout_fraction=spec.dropout_fraction, rng=rng)
-        ref = simulate_range_scan(env, p_ref, yaw_ref, compass_yaw_rad=yaw_ref, station="ref", **common)
-        mov = simulate_range_scan(env_mov, p_mov, yaw_mov, compass_yaw_rad=yaw_mov + yaw_error, station="mov", **common)
+        if spec.sonar == "simulator":
+            common = dict(max_range_m=max_range, step_deg=360.0 / spec.n_beams, rng=rng)
+            ref = simulate_sonar_scan(env, p_ref, yaw_ref, compass_yaw_rad=yaw_ref, station="ref", **common)
+            mov = simulate_sonar_scan(env_mov, p_mov, yaw_mov, compass_yaw_rad=yaw_mov + yaw_error, station="mov",
+                                      **common)
+        else:
+            common = dict(n_beams=spec.n_beams, max_range_m=max_range, noise_m=noise,
+                          outlier_fraction=spec.outlier_fraction, dropout_fraction=spec.dropout_fraction, rng=rng)
+            ref = simulate_range_scan(env, p_ref, yaw_ref, compass_yaw_rad=yaw_ref, station="ref", **common)
+            mov = simulate_range_scan(env_mov, p_mov, yaw_mov, compass_yaw_rad=yaw_mov + yaw_error, station="mov",
+                                      **common)
         if ref.valid.sum() < 20 or mov.valid.sum() < 20:
             continue
         dx, dy = (p_mov - p_ref) if overlapping else rng.uniform(-hi, hi, 2)

@@ -297,6 +297,7 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
     scan = capture.scan.replace(station=label, settings={**capture.scan.settings, "raw_file": raw_rel,
                                                          "heading_deg": heading_deg})
     scan_path = write_scan(scan, _unique(data_dir / f"{label}.npz"))
+    os.chmod(scan_path, 0o644)
     result.scan_path, result.station = scan_path, label
     entry = {
         "file": scan_path.resolve().relative_to(root.resolve()).as_posix(),

@@ -197,10 +197,13 @@ class MicronDriver:
             self._serial.flush()
         except LinkError:
             pass
+        sock = getattr(self._serial, "_socket", None)
         try:
             self._serial.close()
         except (serial.SerialException, OSError):
             pass
+        if sock is not None:
+            sock.close()  # pyserial's socket:// skips close() when shutdown() fails on a dead link
         self._serial = None
 
     def __enter__(self) -> "MicronDriver":

@@ -314,7 +314,8 @@ class EmulatedHead:
     """
 
     def __init__(self, echo: SimulatedEcho, rng: np.random.Generator, *, faults: FaultPlan = FaultPlan(),
-                 timing: HeadTiming | None = None, half_duplex: bool = False, node: int = 2):
+                 timing: HeadTiming | None = None, half_duplex: bool = False, node: int = 2,
+                 keep_history: bool = False):
         self.echo = echo
         self.rng = rng
         self.faults = faults
@@ -327,6 +328,8 @@ class EmulatedHead:
         self._glitched = False
         self._stall_done = False
         self._queue: list[tuple[float, bytes]] = []
+        self.history: list[tuple[int, np.ndarray]] | None = [] if keep_history else None
+        """(bearing, bins) of every scan line sent, when ``keep_history`` (for checking a recording)."""
         self._power_on(0.0, boot=0.0)
 
     # state ---------------------------------------------------------------------------------------
@@ -458,6 +461,8 @@ class EmulatedHead:
         values = self._table[row]
         bins = values if cmd.adc8on else (values >> 4)
         data = head_data_for(cmd, self.bearing, bins, sweep_code=self._sweep_code(cmd))
+        if self.history is not None:
+            self.history.append((self.bearing, data.bins))
         self._move(cmd)
         self.lines_sent += 1
         self._table_lines += 1
@@ -689,13 +694,13 @@ class EmulatorServer:
 
 def build_emulator(echo: SimulatedEcho, *, faults: FaultPlan = FaultPlan(), tcp_port: int | None = None,
                    host: str = "127.0.0.1", timing: HeadTiming | None = None,
-                   half_duplex: bool = False) -> EmulatorServer:
+                   half_duplex: bool = False, keep_history: bool = False) -> EmulatorServer:
     """A ready (not yet started) emulator: pty when ``tcp_port`` is None, else TCP (0 = any free port).
 
     The head's noise and the wire's faults use two generators derived from ``faults.seed``.
     """
     head = EmulatedHead(echo, np.random.default_rng([faults.seed, 0]), faults=faults, timing=timing,
-                        half_duplex=half_duplex)
+                        half_duplex=half_duplex, keep_history=keep_history)
     injector = FaultInjector(faults, np.random.default_rng([faults.seed, 1]))
     if tcp_port is None:
         return EmulatorServer.on_pty(head, injector)

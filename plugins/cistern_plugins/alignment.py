@@ -140,8 +140,8 @@ class ConvergenceThresholds:
     inlier_distance_m: float = 0.15
     min_inliers: int = 25
     min_inlier_ratio: float = 0.5
-    min_constraint: float = 0.04
-    max_violation_ratio: float = 0.15
+    min_constraint: float = 0.1
+    max_violation_ratio: float = 0.09
     free_space_margin_m: float = 0.3
 
 
@@ -151,8 +151,8 @@ class ConvergenceParams(StageParams):
     inlier_distance_m: float = Field(0.15, gt=0)
     min_inliers: int = Field(25, ge=3)
     min_inlier_ratio: float = Field(0.5, ge=0, le=1)
-    min_constraint: float = Field(0.04, ge=0)
-    max_violation_ratio: float = Field(0.15, ge=0, le=1)
+    min_constraint: float = Field(0.1, ge=0)
+    max_violation_ratio: float = Field(0.09, ge=0, le=1)
     free_space_margin_m: float = Field(0.3, ge=0)
     min_points: int = Field(20, ge=3)
 

@@ -3,7 +3,12 @@
 Probe (``method="probe"``)
     From the probe's inside point, walk along ``+direction`` and ``-direction`` to the first occupied
     cell (log-odds above ``occupied_log_odds``) on each side; the measurement is the distance between the
-    two cells' inner edges (the paper counted cells "from one inside edge to the other"). ``repeats``
+    two walls, each taken at the middle of its first cell (``edge="centre"``, default) or at the cell's
+    inner edge (``edge="inner"``, the paper's count "from one inside edge to the other"). The inverse
+    sonar model marks the cell that contains the echo, so the wall lies anywhere in that cell and its
+    centre is the unbiased estimate; the inner edge is on average half a cell inside the wall on each
+    side, i.e. one cell short over a width (measured: −0.055 m vs −0.005 m mean width error on
+    synthetic pools, ``benchmarks/RESULTS.md``). ``repeats``
     parallel probes are spaced ``spacing_m`` apart across the direction, centred on the inside point;
     the row's value is their mean and their spread is the paper's probe standard deviation.
 

@@ -21,6 +21,10 @@ Decisions where the paper's text is ambiguous
   place); the default ``0`` treats "no evidence" as neither agreement nor contradiction, so the weight
   at the right place is about the overlap fraction times the agreement, while beams that end in
   space ``m_i`` saw as free are still penalised.
+* **Walls of m_i** – the inverse model marks the echo range occupied over ``map_occupied``: the whole
+  beam cone (``"cone"``, the classic model), one beam step around the axis (``"step"``, default: walls
+  stay contiguous but a wall seen at a grazing angle is not smeared across a 3° cone into open water,
+  which in a 1.4 m gallery puts phantom walls in mid-channel), or the axis alone (``"axis"``).
 * **δm** – ``measurement_model="raycast"`` casts a ray from the particle along the beam to the first
   cell of ``m_i`` whose occupancy probability exceeds ``weight_threshold`` (sphere tracing over the
   distance field, which returns the same first hit as a half-cell march, see
@@ -41,9 +45,21 @@ Decisions where the paper's text is ambiguous
   ``dyaw`` the circular mean of θ, ``weight`` the final ``w_μ``, ``covariance`` the particles'
   covariance of (x, y, θ).
 
-Improvements over the paper, off by default where they change the method: ``init_oversample > 1``
-weighs that many more uniform samples in the first iteration and keeps ``n_particles`` of them
-(coarse search before the fine filter).
+Defaults and the paper
+----------------------
+The defaults are the measured best (``benchmarks/RESULTS.md``); the paper's method is
+``measurement_model="raycast", resample_weighting="shifted", init_oversample=1, unknown_score=-1,
+map_occupied="cone", verify=False``. The departures:
+
+* ``init_oversample`` – the first iteration weighs that many uniform samples per particle and keeps
+  ``n_particles`` of them (a coarse search before the fine filter);
+* ``resample_weighting="exponential"``, ``unknown_score=0`` and ``map_occupied="step"`` (above);
+* ``verify`` – a converged estimate is checked before it is reported (:func:`verify_unique`): it may
+  not sit on the edge of the search square, more than ``max_crossing`` of its beams may not pass
+  through walls of ``m_i``, and no position farther than ``ambiguity_radius_m`` may score nearly as
+  well. Eqs. 5–6 alone accept a filter that collapsed onto one of several equally good places.
+* ``min_informative < 1`` (off by default) normalises the weight by the beams that land where ``m_i``
+  has evidence instead of by all beams; ``map_free`` narrows the free-space cone of ``m_i``.
 """
 
 from __future__ import annotations
@@ -82,18 +98,28 @@ class PFParams(StageParams):
     measurement_model: Literal["raycast", "distance-field"] = "distance-field"
     resample_weighting: Literal["shifted", "exponential"] = "exponential"
     sharpness: float = Field(40.0, gt=0, description="exponent scale of 'exponential' resampling")
-    init_oversample: int = Field(8, ge=1, le=100, description="uniform samples weighed at start, per particle")
-    max_beams: int = Field(400, ge=1, description="beams of the moving scan used (evenly subsampled)")
+    init_oversample: int = Field(4, ge=1, le=100, description="uniform samples weighed at start, per particle")
+    max_beams: int = Field(200, ge=1, description="beams of the moving scan used (evenly subsampled)")
     min_beams: int = Field(10, ge=1, description="fewer echoes than this: not converged")
     verify: bool = Field(True, description="reject converged estimates that are ambiguous or on the search edge")
-    verify_step_m: float = Field(0.1, gt=0, description="grid step of the ambiguity search (m)")
+    verify_step_m: float = Field(0.15, gt=0, description="grid step of the ambiguity search (m)")
     ambiguity_radius_m: float = Field(0.5, gt=0, description="alternatives farther than this count as other modes")
     ambiguity_ratio: float = Field(0.85, gt=0, le=1, description="an alternative scoring this share of the best is a rival")
     max_crossing: float = Field(0.1, ge=0, le=1, description="largest share of beams that may cross a wall of m_i")
+    verify_beams: int = Field(100, ge=10, description="beams used by the ambiguity search (evenly subsampled)")
     history_snapshots: int = Field(4, ge=0, le=50, description="particle snapshots kept for the report")
     snapshot_particles: int = Field(200, ge=1, description="particles kept per snapshot")
     map_l_occ: float = Field(0.85, gt=0, description="log-odds of an echo cell in m_i")
     map_l_free: float = Field(-0.4, lt=0, description="log-odds of a free cell in m_i")
+    map_free: Literal["cone", "step", "axis"] = Field(
+        "cone", description="part of the beam cone marked free in m_i in front of the echo"
+    )
+    min_informative: float = Field(
+        1.0, gt=0, le=1, description="weight = sum over beams / max(informative beams, this share of beams)"
+    )
+    map_occupied: Literal["cone", "step", "axis"] = Field(
+        "step", description="part of the beam cone marked occupied in m_i: all, one beam step, the axis"
+    )
     unknown_score: float = Field(
         0.0, ge=-1, le=1, description="contribution of a beam whose end lies where m_i has no evidence (paper: -1)"
     )
@@ -154,7 +180,11 @@ class PFPairwiseMatcher:
         if key in self._maps:
             self._maps.move_to_end(key)
             return self._maps[key]
-        sonar = SonarModel(l_occ=p.map_l_occ, l_free=p.map_l_free, free_no_echo=False)
+        sonar = SonarModel(
+            l_occ=p.map_l_occ, l_free=p.map_l_free, free_no_echo=False,
+            occupied_width_rad=occupied_width(reference, p.map_occupied),
+            free_width_rad=occupied_width(reference, p.map_free),
+        )
         dense = dense_scan_map(reference, cell_m=p.cell_m, model=sonar, margin_m=p.delta_max_m + p.cell_m)
         lookup = OccupancyLookup(dense.occupied(p.weight_threshold), dense.origin_xy_m, dense.cell_m)
         known = np.zeros((dense.log_odds.shape[0] + 2, dense.log_odds.shape[1] + 2), dtype=bool)
@@ -181,8 +211,20 @@ def _map_key(scan: RangeScan, p: PFParams) -> bytes:
     h.update(np.ascontiguousarray(scan.bearings_rad).tobytes())
     h.update(np.ascontiguousarray(scan.ranges_m).tobytes())
     h.update(repr((scan.yaw_rad, scan.bin_size_m, scan.beam_width_rad, scan.max_range_m)).encode())
-    h.update(repr((p.cell_m, p.weight_threshold, p.map_l_occ, p.map_l_free, p.delta_max_m)).encode())
+    h.update(repr((p.cell_m, p.weight_threshold, p.map_l_occ, p.map_l_free, p.delta_max_m,
+                   p.map_occupied, p.map_free, p.unknown_score, p.verify_step_m)).encode())
     return h.digest()
+
+
+def occupied_width(scan: RangeScan, mode: str) -> float | None:
+    """Angular width marked occupied around each echo in ``m_i`` (``None``: the whole beam cone)."""
+    if mode == "cone":
+        return None
+    if mode == "axis" or scan.bearings_rad.size < 2:
+        return 0.0
+    b = np.sort((np.asarray(scan.bearings_rad) + np.pi) % (2 * np.pi) - np.pi)
+    gaps = np.diff(np.append(b, b[0] + 2 * np.pi))
+    return float(np.median(gaps[gaps > 1e-9])) if np.any(gaps > 1e-9) else 0.0
 
 
 def _score(distance: np.ndarray, p: PFParams, sigma_c: float | None = None) -> np.ndarray:
@@ -225,19 +267,28 @@ def _weigh(model: _MapModel, beams: _Beams, particles: np.ndarray, p: PFParams) 
     c, s = np.cos(th), np.sin(th)
     ux = c * beams.cos - s * beams.sin  # (P, B) beam directions
     uy = s * beams.cos + c * beams.sin
+    n_beams = beams.ranges.size
     if p.measurement_model == "distance-field":
         flat = model.lookup.flat_index(x + beams.ranges * ux, y + beams.ranges * uy)
-        return model.score_flat[flat].mean(axis=1, dtype=np.float64)
+        total = model.score_flat[flat].sum(axis=1, dtype=np.float64)
+        if p.min_informative >= 1.0:
+            return total / n_beams
+        informative = (model.known_flat[flat] | (model.score_flat[flat] > 0)).sum(axis=1)
+        return total / np.maximum(informative, p.min_informative * n_beams)
     angle = np.arctan2(uy, ux)
     hit = model.lookup.sphere_trace(x, y, angle, beams.ranges + p.delta_max_m)
     diff = np.where(np.isfinite(hit), np.abs(beams.ranges - hit), FAR_M)
     sigma_c = 2.0 * p.cell_m
     phi = np.exp(-(diff * diff) / (2.0 * sigma_c * sigma_c))
     score = np.where(diff < p.delta_max_m, phi, -(1.0 - phi))
-    if p.unknown_score != -1.0:
-        end_known = model.known_flat[model.lookup.flat_index(x + beams.ranges * ux, y + beams.ranges * uy)]
-        score = np.where(np.isfinite(hit) | end_known, score, p.unknown_score)
-    return score.mean(axis=1)
+    if p.unknown_score == -1.0 and p.min_informative >= 1.0:
+        return score.mean(axis=1)
+    end_known = model.known_flat[model.lookup.flat_index(x + beams.ranges * ux, y + beams.ranges * uy)]
+    informative = np.isfinite(hit) | end_known
+    score = np.where(informative, score, p.unknown_score)
+    if p.min_informative >= 1.0:
+        return score.mean(axis=1)
+    return score.sum(axis=1) / np.maximum(informative.sum(axis=1), p.min_informative * n_beams)
 
 
 def _low_variance(probabilities: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -384,6 +435,9 @@ def verify_unique(model: _MapModel, beams: _Beams, estimate: tuple[float, float,
     if crossing > p.max_crossing:
         return (f"{100 * crossing:.0f} % of the beams pass through walls of the reference map before their "
                 f"echo (more than max_crossing={p.max_crossing:g}): the scans contradict each other here")
+    if beams.ranges.size > p.verify_beams:
+        keep = np.linspace(0, beams.ranges.size - 1, p.verify_beams).round().astype(np.int64)
+        beams = _Beams(ranges=beams.ranges[keep], cos=beams.cos[keep], sin=beams.sin[keep])
     axis = np.arange(-half, half + 1e-9, p.verify_step_m)
     gx, gy = np.meshgrid(axis, axis)
     cand = np.column_stack([np.append(gx.ravel(), dx), np.append(gy.ravel(), dy)])

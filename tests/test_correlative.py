@@ -1,0 +1,41 @@
+"""Correlative matcher: exact branch and bound, large offsets without a guess, honest flag."""
+
+import math
+
+import numpy as np
+
+from cistern_archive.testing import simulated_pair
+from cistern_plugins.alignment import scan_points
+from cistern_plugins.correlative import CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound
+
+
+def test_large_offset_without_guess():
+    rng = np.random.default_rng(11)
+    pair = simulated_pair(rng, overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0), noise_m=0.02)
+    res = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)
+    assert res.converged, res.reason
+    np.testing.assert_allclose([res.dx_m, res.dy_m], [pair.dx_m, pair.dy_m], atol=0.1)
+    assert abs(math.degrees(res.dyaw_rad - pair.dyaw_rad)) < 2.0
+
+
+def test_branch_and_bound_equals_exhaustive():
+    rng = np.random.default_rng(5)
+    pair = simulated_pair(rng, overlap_range=(0.6, 1.0), noise_m=0.02)
+    ref, mov = scan_points(pair.reference), scan_points(pair.moving)[::4]
+    pyr = LikelihoodPyramid(ref, 0.1, 0.1, 1.5, 3)
+    angles = np.radians([-4.0, 0.0, 4.0])
+    nodes, scores = branch_and_bound(pyr, mov, angles, 10, 0.999)
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    cells = pyr.cells(np.stack([c * mov[:, 0] - s * mov[:, 1], s * mov[:, 0] + c * mov[:, 1]], axis=-1))
+    g = np.arange(-10, 11)
+    gx, gy, ga = np.meshgrid(g, g, np.arange(3), indexing="ij")
+    allnodes = np.column_stack([gx.ravel(), gy.ravel(), ga.ravel()])
+    exhaustive = pyr.score(0, cells, allnodes[:, :2], allnodes[:, 2])
+    assert math.isclose(float(scores[0]), float(exhaustive.max()), rel_tol=1e-6)
+
+
+def test_no_overlap_is_not_converged():
+    rng = np.random.default_rng(6)
+    flags = [CorrelativeMatcher().match(p.reference, p.moving, CorrelativeParams(), rng=rng).converged
+             for p in (simulated_pair(rng, overlapping=False) for _ in range(6))]
+    assert not any(flags)

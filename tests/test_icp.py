@@ -1,0 +1,37 @@
+"""ICP matcher: recovers known shifts, both variants, honest flag."""
+
+import numpy as np
+import pytest
+
+from cistern_archive.testing import simulated_pair
+from cistern_plugins.icp import ICPMatcher, ICPParams
+
+
+@pytest.mark.parametrize("variant", ["point-to-point", "point-to-line"])
+def test_recovers_small_offset(variant):
+    rng = np.random.default_rng(6)
+    pair = simulated_pair(rng, overlap_range=(0.8, 1.0), offset_range_m=(0.1, 0.4), noise_m=0.02)
+    res = ICPMatcher().match(pair.reference, pair.moving, ICPParams(variant=variant), rng=rng)
+    assert res.converged, res.reason
+    np.testing.assert_allclose([res.dx_m, res.dy_m], [pair.dx_m, pair.dy_m], atol=0.1)
+
+
+def test_no_overlap_is_not_converged():
+    rng = np.random.default_rng(4)
+    flags = [ICPMatcher().match(p.reference, p.moving, ICPParams(), rng=rng).converged
+             for p in (simulated_pair(rng, overlapping=False) for _ in range(10))]
+    assert sum(flags) <= 1
+
+
+def test_too_few_points_gives_reason():
+    rng = np.random.default_rng(0)
+    pair = simulated_pair(rng)
+    empty = type(pair.moving)(pair.moving.bearings_rad, np.full_like(pair.moving.ranges_m, np.nan), 0.0, 0.0, 5.0,
+                              0.05, 0.05)
+    res = ICPMatcher().match(pair.reference, empty, ICPParams(), rng=rng)
+    assert not res.converged and "too few echoes" in res.reason
+
+
+def test_params_refuse_unknown_keys():
+    with pytest.raises(ValueError):
+        ICPParams(variant="point-to-plane")

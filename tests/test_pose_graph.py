@@ -1,0 +1,44 @@
+"""Pose-graph localizer: window pairs, robust to a wrong match, marginals, unplaced scans."""
+
+import numpy as np
+
+from cistern_archive.pipeline.contracts import MatchResult
+from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.pose_graph import PoseGraphLocalizer, PoseGraphParams
+
+TRUTH = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.5], [3.0, 0.2], [4.0, 0.0]])
+
+
+def _scans(n):
+    return [RangeScan(np.zeros(3), np.ones(3), 0.0, 1.0, 5.0, 0.05, 0.05) for _ in range(n)]
+
+
+def _matches(pairs, rng, sigma=0.02):
+    return [MatchResult(i, j, *(TRUTH[j] - TRUTH[i] + rng.normal(0, sigma, 2)), 0.0, 1.0, True, 1, 0.0)
+            for i, j in pairs]
+
+
+def test_pairs_window_and_directions():
+    loc = PoseGraphLocalizer()
+    assert loc.pairs(4, PoseGraphParams(window=2, directions="one")) == [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)]
+    assert len(loc.pairs(4, PoseGraphParams(window=2))) == 10
+
+
+def test_recovers_positions_despite_a_wrong_match():
+    loc, p = PoseGraphLocalizer(), PoseGraphParams(window=3)
+    ms = _matches(loc.pairs(5, p), np.random.default_rng(0))
+    ms.append(MatchResult(0, 2, 5.0, -4.0, 0.0, 1.0, True, 1, 0.0))
+    poses = loc.localize(_scans(5), ms, p)
+    assert poses.placed.all()
+    xy = poses.xy_m - poses.xy_m[0]
+    np.testing.assert_allclose(xy, TRUTH, atol=0.08)
+    assert poses.covariance.shape == (5, 3, 3)
+    assert np.all(np.linalg.eigvalsh(poses.covariance[1]) > 0)
+
+
+def test_disconnected_scan_is_unplaced_with_reason():
+    loc, p = PoseGraphLocalizer(), PoseGraphParams(window=1)
+    ms = _matches([(0, 1), (1, 2)], np.random.default_rng(1))
+    poses = loc.localize(_scans(4), ms, p)
+    assert not poses.placed[3] and "no converged path" in poses.reasons[3]
+    assert np.isnan(poses.xy_m[3]).all()

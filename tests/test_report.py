@@ -1,0 +1,303 @@
+"""Reports: volume stacking, mesh exports, deterministic files, and the site and index pages."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import struct
+import zlib
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from cistern_archive.grid.volume import stack_slices
+from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult
+from cistern_archive.report import ReportConfig, page_bytes, render_site
+from cistern_archive.report.files import build_time_from_env, slug, unique_slugs, write_npz
+from cistern_archive.report.gltf import glb_bytes, read_glb
+from cistern_archive.report.html import signed
+from cistern_archive.report.model3d import build_mesh
+from report_fixtures import LATITUDE, LENGTH_M, SITES, WIDTH_M, make_site_build, render_catalog
+
+@pytest.fixture(scope="module")
+def catalog(tmp_path_factory) -> tuple[Path, dict[str, dict[str, str]]]:
+    root = tmp_path_factory.mktemp("report")
+    return root, render_catalog(root)
+
+
+# ------------------------------------------------------------------------------------------ volume
+def _box_grid(half: float, depth: float, cell: float = 0.05) -> EvidenceGrid:
+    n = int(round(2 * (half + 0.5) / cell))
+    centres = -(half + 0.5) + (np.arange(n) + 0.5) * cell
+    gx, gy = np.meshgrid(centres, centres)
+    inside = half - np.maximum(np.abs(gx), np.abs(gy))
+    log_odds = np.zeros((n, n), dtype=np.float32)
+    log_odds[inside > cell] = -2.0
+    log_odds[np.abs(inside) <= cell / 2 + 1e-9] = 4.0
+    return EvidenceGrid(log_odds, (-(half + 0.5), -(half + 0.5)), cell, depth)
+
+
+def test_single_slice_is_extruded_between_surface_and_below():
+    grid = _box_grid(1.0, depth=0.6)
+    volume = stack_slices(MapResult((grid,)), dz_m=0.1, extend_m=1.0)
+    assert volume.depths_m[0] == 0.0  # clamped at the water surface
+    assert_allclose(volume.depths_m[-1], 1.6)
+    assert_allclose(volume.probability[0], grid.probability(), rtol=1e-6)
+    assert np.all(volume.probability == volume.probability[:1])
+
+
+def test_several_slices_move_the_wall_between_them():
+    shallow, deep = _box_grid(1.0, depth=1.0), _box_grid(2.0, depth=3.0)
+    volume = stack_slices(MapResult((deep, shallow)), dz_m=0.5, extend_m=0.0)
+    assert volume.slice_depths_m == (1.0, 3.0)
+    middle = volume.probability[list(volume.depths_m).index(2.0)]
+    row = middle[middle.shape[0] // 2]
+    xs = volume.origin_xy_m[0] + (np.arange(len(row)) + 0.5) * volume.cell_m
+    wall_x = xs[np.argmax(np.where(xs > 0, row, -1))]
+    assert abs(wall_x - 1.5) <= 2 * volume.cell_m  # halfway between the walls at 1 m and 2 m
+
+
+def test_isosurface_wraps_the_walls():
+    build = make_site_build()
+    config = ReportConfig()
+    volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
+    mesh = build_mesh(volume, config)
+    x0, x1, y0, y1, z0, z1 = mesh.bounds
+    assert abs((x1 - x0) - (WIDTH_M + 0.1)) < 0.15 and abs((y1 - y0) - (LENGTH_M + 0.1)) < 0.15
+    assert z1 <= -0.4 and z0 >= -2.6  # 1.5 m ± 1 m
+    assert mesh.n_cells <= config.max_faces
+    assert "depth_m" in mesh.point_data
+
+
+# ------------------------------------------------------------------------------------------ files
+def test_glb_round_trip_and_axes():
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 2, -1]], dtype=float)
+    data = glb_bytes(points, np.array([[0, 1, 2]]), colors=np.array([[255, 0, 0]] * 3, dtype=np.uint8))
+    assert data == glb_bytes(points, np.array([[0, 1, 2]]), colors=np.array([[255, 0, 0]] * 3, dtype=np.uint8))
+    document, blob = read_glb(data)
+    assert document["asset"]["version"] == "2.0"
+    position = document["accessors"][document["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+    assert position["count"] == 3
+    view = document["bufferViews"][position["bufferView"]]
+    xyz = np.frombuffer(blob, dtype=np.float32, count=9, offset=view["byteOffset"]).reshape(3, 3)
+    assert_allclose(xyz[2], [0, -1, -2])  # (x, z up, -y)
+    assert position["min"] == [0.0, -1.0, -2.0] and position["max"] == [1.0, 0.0, 0.0]
+    assert len(data) % 4 == 0
+
+
+def test_npz_is_reproducible_and_loadable(tmp_path):
+    arrays = {"b": np.arange(5.0), "a": np.eye(2, dtype=np.float32)}
+    write_npz(tmp_path / "one.npz", arrays)
+    write_npz(tmp_path / "two.npz", dict(reversed(arrays.items())))
+    assert (tmp_path / "one.npz").read_bytes() == (tmp_path / "two.npz").read_bytes()
+    with np.load(tmp_path / "one.npz") as loaded:
+        assert_allclose(loaded["b"], arrays["b"])
+        assert loaded["a"].dtype == np.float32
+
+
+def test_build_time_comes_only_from_source_date_epoch():
+    assert build_time_from_env({}) is None
+    assert build_time_from_env({"SOURCE_DATE_EPOCH": "0"}).year == 1970
+    with pytest.raises(ValueError, match="SOURCE_DATE_EPOCH"):
+        build_time_from_env({"SOURCE_DATE_EPOCH": "yesterday"})
+
+
+def test_ids_from_titles():
+    assert slug("Pair S1 → S2") == "pair-s1-s2"
+    assert unique_slugs(["Map", "map", "Map!"]) == ["map", "map-2", "map-3"]
+    assert signed(-0.0261) == "\u22120.026" and signed(0.105) == "+0.105" and signed(None) == "—"
+
+
+# ------------------------------------------------------------------------------------------ pages
+class PageAudit(HTMLParser):
+    """Collects what the accessibility and offline checks need from a page."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lang = None
+        self.images: list[dict] = []
+        self.links: list[str] = []
+        self.ids: set[str] = set()
+        self.tables = 0
+        self.captions = 0
+        self.th: list[dict] = []
+        self.scripts = 0
+        self.figures = 0
+        self.figcaptions = 0
+        self.external: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if "id" in a:
+            self.ids.add(a["id"])
+        if tag == "html":
+            self.lang = a.get("lang")
+        elif tag == "img":
+            self.images.append(a)
+        elif tag == "a" and "href" in a:
+            self.links.append(a["href"])
+        elif tag == "table":
+            self.tables += 1
+        elif tag == "caption":
+            self.captions += 1
+        elif tag == "th":
+            self.th.append(a)
+        elif tag == "script":
+            self.scripts += 1
+        elif tag == "figure":
+            self.figures += 1
+        elif tag == "figcaption":
+            self.figcaptions += 1
+        for key in ("src", "href"):
+            if re.match(r"^(https?:)?//", a.get(key) or ""):
+                self.external.append(a[key])
+
+
+def audit(page: Path) -> PageAudit:
+    parser = PageAudit()
+    parser.feed(page.read_text(encoding="utf-8"))
+    return parser
+
+
+PAGES = ["index.html", "pool/index.html", "bell/index.html", "broken/index.html"]
+
+
+@pytest.mark.parametrize("page", PAGES)
+def test_pages_are_accessible_and_offline(catalog, page):
+    root, _ = catalog
+    path = root / page
+    found = audit(path)
+    assert found.lang == "en"
+    assert found.scripts == 0 and found.external == []
+    for image in found.images:
+        assert image.get("alt", "").strip(), image
+        assert (path.parent / image["src"]).is_file(), image["src"]
+    for href in found.links:
+        target, _, anchor = href.partition("#")
+        if target:
+            assert (path.parent / target).is_file(), href
+            if anchor:
+                assert anchor in audit(path.parent / target).ids, href
+        elif anchor:
+            assert anchor in found.ids, href
+    assert found.tables == found.captions
+    assert all(th.get("scope") in ("col", "row") for th in found.th)
+    assert found.figures == found.figcaptions
+    assert "<style>" in path.read_text() and "@media print" in path.read_text()
+
+
+def test_site_folder_holds_every_artifact(catalog):
+    root, artifacts = catalog
+    pool = artifacts["pool"]
+    for key in ("page", "result", "grid", "grid-png-0", "map", "thumbnail", "probes", "mesh-ply", "mesh-gltf",
+                "render-top", "render-oblique-ne", "render-oblique-sw", "render-section", "dimensions-csv",
+                "pairs-csv", "scans-csv", "fans", "pairs-convergence", "pairs-particles-1"):
+        assert (root / "pool" / pool[key]).is_file(), key
+    result = json.loads((root / "pool" / "result.json").read_text())
+    assert result["artifacts"] == pool
+    with np.load(root / "pool" / "grid.npz") as grid:
+        assert grid["log_odds_0"].ndim == 2 and grid["depths_m"].tolist() == [1.5]
+    read_glb((root / "pool" / "model.glb").read_bytes())
+    assert (root / "pool" / "model.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
+    rows = (root / "pool" / "dimensions.csv").read_text().splitlines()
+    assert rows[0].startswith("name,reference_kind,depth_m,map_m,reference_m,diff_m") and len(rows) == 3
+    assert "slices" in artifacts["bell"] and "mesh-ply" in artifacts["bell"]
+
+
+def test_site_page_shows_tables_and_unplaced_scans(catalog):
+    root, _ = catalog
+    html = (root / "bell" / "index.html").read_text()
+    assert 'id="dimension-table"' in html
+    for text in ("Width", "Length", "Difference (m)", "Probe std (m)", "Scans not placed, and why",
+                 "no converged match links it to the reference scan", "Parameters and provenance",
+                 "pf-pairwise", "model.glb", "result.json", "dimensions.csv", "interpolated between them"):
+        assert text in html, text
+
+
+def test_failed_build_page_shows_error_stage_and_input(catalog):
+    root, artifacts = catalog
+    html = (root / "broken" / "index.html").read_text()
+    assert 'role="alert"' in html and "Build failed" in html
+    assert "reference scan has no valid beams" in html
+    assert "pair (0, 2): broken/scan1.npz → broken/scan3.npz" in html
+    assert "fans" in artifacts["broken"] and "mesh-ply" not in artifacts["broken"]
+    assert "the build stopped before the mapping stage" in html
+
+
+def test_coordinates_are_redacted_when_the_record_asks(catalog):
+    root, _ = catalog
+    needle = str(LATITUDE)[:6]  # "35.885", a prefix of any rounding the page could print
+    for path in (root / "pool").iterdir():
+        if path.suffix in (".html", ".json", ".csv"):
+            assert needle not in path.read_text(), path
+    assert "withheld" in (root / "pool" / "index.html").read_text()
+    assert needle in (root / "bell" / "index.html").read_text()
+
+
+def test_index_lists_sites_and_the_difference_table(catalog):
+    root, _ = catalog
+    html = (root / "index.html").read_text()
+    for text in ("Swimming pool", "Bell cistern", "Broken site", "4 of 4", "3 of 4", "0 of 4",
+                 "reference scan has no valid beams", 'id="difference-table"', "Width (m)", "Length (m)",
+                 "pool/thumbnail.png", "2024-01-01T00:00:00Z", "Table IV"):
+        assert text in html, text
+    assert "broken/thumbnail.png" not in html
+
+
+def test_site_page_with_images_fits_the_size_budget(catalog):
+    root, _ = catalog
+    for site in SITES:
+        assert page_bytes(root / site / "index.html") <= ReportConfig().max_page_bytes
+
+
+def _png_chunks(data: bytes) -> list[bytes]:
+    chunks, offset = [], 8
+    while offset < len(data):
+        length, kind = struct.unpack(">I4s", data[offset:offset + 8])
+        chunks.append(kind)
+        offset += 12 + length
+    return chunks
+
+
+def test_pngs_carry_no_metadata(catalog):
+    root, _ = catalog
+    for png in sorted((root / "pool").glob("*.png")):
+        chunks = _png_chunks(png.read_bytes())
+        assert not {b"tEXt", b"iTXt", b"zTXt", b"tIME"} & set(chunks), (png.name, chunks)
+
+
+def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
+    root, _ = catalog
+    again = tmp_path / "pool"
+    again.mkdir()
+    capfd.readouterr()
+    render_site(make_site_build(**SITES["pool"]), again)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""  # no X / VTK warnings on a machine without a display
+
+    def digest(folder: Path) -> dict[str, str]:
+        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+
+    first, second = digest(root / "pool"), digest(again)
+    assert first.keys() == second.keys()
+    assert [name for name in first if first[name] != second[name]] == []
+    assert zlib.crc32((again / "index.html").read_bytes()) == zlib.crc32((root / "pool" / "index.html").read_bytes())
+
+
+def test_specks_are_dropped_from_the_mesh():
+    build = make_site_build()
+    grid = build.map_result.grids[0]
+    log_odds = grid.log_odds.copy()
+    log_odds[2, 2] = 4.0  # one isolated echo outside the walls
+    speckled = MapResult((EvidenceGrid(log_odds, grid.origin_xy_m, grid.cell_m, grid.depth_m),))
+    config = ReportConfig()
+    volume = stack_slices(speckled, dz_m=config.dz_m, extend_m=config.extend_m)
+    clean = build_mesh(volume, config)
+    kept = build_mesh(volume, config.model_copy(update={"min_component_fraction": 0.0}))
+    x0 = grid.origin_xy_m[0] + 2 * grid.cell_m
+    assert kept.bounds[0] <= x0 + grid.cell_m  # the speck reaches out to the corner
+    assert clean.bounds[0] > x0 + 5 * grid.cell_m
