@@ -48,3 +48,9 @@ def report_is_complete(site_dir: Path) -> bool:
     info = json.loads((site_dir / "build.json").read_text(encoding="utf-8"))
     return bool(info["files"]) and all(
         file_sha256(site_dir / name)[0] == digest for name, digest in info["files"].items())
+
+
+def copy_built(template: tuple[Path, Path], target: Path) -> tuple[Path, Path]:
+    """Copies of a catalog and of its published reports (build keys do not depend on their location)."""
+    catalog, out = template
+    return copy_catalog(catalog, target / "catalog"), Path(shutil.copytree(out, target / "site", symlinks=True))

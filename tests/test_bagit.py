@@ -75,6 +75,7 @@ def test_a_damaged_bag_fails_validation_and_a_re_export_replaces_it(built, tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
 
 
+@pytest.mark.slow
 def test_export_command(built, tmp_path):
     catalog, out = built
     run = subprocess.run([*CLI, "export", SITE, "--bag", str(tmp_path / "bag"), "--catalog", str(catalog),

@@ -60,7 +60,7 @@ def test_protocol_and_registry():
 
 def test_probe_measures_width_and_length(pool):
     map_result, poses = pool
-    table = MosaicComparator().compare(map_result, poses, refs(), STATIONS, MosaicParams())
+    table = MosaicComparator().compare(map_result, poses, refs(), STATIONS, MosaicParams(edge="centre"))
     width, length = table.rows
     assert width.map_m == pytest.approx(W, abs=0.05)
     assert length.map_m == pytest.approx(L, abs=0.05)
@@ -91,7 +91,7 @@ def test_frame_of_another_station(pool):
 
 def test_map_frame_probe(pool):
     map_result, poses = pool
-    table = MosaicComparator().compare(map_result, poses, refs(frame=None), STATIONS, MosaicParams())
+    table = MosaicComparator().compare(map_result, poses, refs(frame=None), STATIONS, MosaicParams(edge="centre"))
     assert table.rows[0].map_m == pytest.approx(W, abs=0.05)
 
 
@@ -111,7 +111,7 @@ def test_auto_width_and_length(angle):
         ReferenceDimension(name="width", value_m=W, kind="truth", measure=Probe(method="auto-width", repeats=5)),
         ReferenceDimension(name="length", value_m=L, kind="truth", measure=Probe(method="auto-length", repeats=5)),
     ]
-    table = MosaicComparator().compare(map_result, poses, auto, STATIONS, MosaicParams())
+    table = MosaicComparator().compare(map_result, poses, auto, STATIONS, MosaicParams(edge="centre"))
     width, length = table.rows
     assert width.map_m == pytest.approx(W, abs=0.1)
     assert length.map_m == pytest.approx(L, abs=0.1)

@@ -11,7 +11,8 @@ import pytest
 from cistern_archive.archive import Archive, verify_archive
 from cistern_archive.errors import CatalogError
 from cistern_archive.service.rebuild import rebuild
-from service_helpers import CLI, FAST_REPORT, comparable_result, copy_catalog, make_catalog, report_is_complete
+from service_helpers import (CLI, FAST_REPORT, comparable_result, copy_built, copy_catalog, make_catalog,
+                             report_is_complete)
 
 SITES = ["cistern-000", "cistern-001"]
 
@@ -24,6 +25,20 @@ def template(tmp_path_factory) -> Path:
 @pytest.fixture()
 def catalog(template, tmp_path) -> Path:
     return copy_catalog(template, tmp_path / "catalog")
+
+
+@pytest.fixture(scope="module")
+def built_once(template, tmp_path_factory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("built") / "site"
+    summary = _rebuild(template, out)
+    assert [s.status for s in summary.sites] == ["ok", "ok"]
+    return template, out
+
+
+@pytest.fixture()
+def built(built_once, tmp_path) -> tuple[Path, Path]:
+    """A catalog and its published reports, copied for one test."""
+    return copy_built(built_once, tmp_path)
 
 
 def _rebuild(catalog: Path, out: Path, **kwargs):
@@ -66,9 +81,11 @@ def test_rebuild_publishes_every_site_then_skips_the_unchanged(catalog, tmp_path
         assert verify_archive(archive).ok
 
 
-def test_a_changed_record_rebuilds_only_its_site_and_force_rebuilds_all(catalog, tmp_path):
-    out = tmp_path / "site"
+@pytest.mark.slow
+def test_a_changed_record_rebuilds_only_its_site_and_force_rebuilds_all(built):
+    catalog, out = built
     first = _rebuild(catalog, out)
+    assert [s.status for s in first.sites] == ["skipped", "skipped"]
     record = catalog / "sites" / "cistern-001.yaml"
     record.chmod(0o644)
     record.write_text(record.read_text().replace("description: ", "description: Edited. ", 1))
@@ -83,9 +100,8 @@ def test_a_changed_record_rebuilds_only_its_site_and_force_rebuilds_all(catalog,
     assert comparable_result(out / "cistern-000" / "result.json")["site_id"] == "cistern-000"
 
 
-def test_a_failing_site_never_stops_the_others(catalog, tmp_path):
-    out = tmp_path / "site"
-    _rebuild(catalog, out)
+def test_a_failing_site_never_stops_the_others(built):
+    catalog, out = built
     before = (out / "cistern-000" / "result.json").read_text()
     scan = catalog / "data" / "cistern-000" / "s1.npz"
     scan.chmod(0o644)
@@ -117,6 +133,7 @@ def test_site_selection(catalog, tmp_path):
         _rebuild(catalog, tmp_path / "site", sites=["nowhere"])
 
 
+@pytest.mark.slow
 def test_rebuild_command_plain_output_and_exit_codes(catalog, tmp_path):
     out, archive = tmp_path / "site", tmp_path / "vault"
     args = [*CLI, "rebuild", "--catalog", str(catalog), "--out", str(out), "--archive", str(archive),

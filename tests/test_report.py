@@ -67,7 +67,8 @@ def test_isosurface_wraps_the_walls():
     volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
     mesh = build_mesh(volume, config)
     x0, x1, y0, y1, z0, z1 = mesh.bounds
-    assert abs((x1 - x0) - (WIDTH_M + 0.1)) < 0.15 and abs((y1 - y0) - (LENGTH_M + 0.1)) < 0.15
+    # outer faces: the wall cells (±1 cell) plus the one-cell display dilation on each side
+    assert 0.05 < (x1 - x0) - WIDTH_M < 0.35 and 0.05 < (y1 - y0) - LENGTH_M < 0.35
     assert z1 <= -0.4 and z0 >= -2.6  # 1.5 m ± 1 m
     assert mesh.n_cells <= config.max_faces
     assert "depth_m" in mesh.point_data
@@ -296,8 +297,10 @@ def test_specks_are_dropped_from_the_mesh():
     speckled = MapResult((EvidenceGrid(log_odds, grid.origin_xy_m, grid.cell_m, grid.depth_m),))
     config = ReportConfig()
     volume = stack_slices(speckled, dz_m=config.dz_m, extend_m=config.extend_m)
-    clean = build_mesh(volume, config)
-    kept = build_mesh(volume, config.model_copy(update={"min_component_fraction": 0.0}))
+    kept = build_mesh(volume, config.model_copy(update={"min_component_fraction": 0.0, "min_blob_cells": 0}))
+    by_blob = build_mesh(volume, config)
+    by_piece = build_mesh(volume, config.model_copy(update={"min_blob_cells": 0, "dilate_cells": 0}))
     x0 = grid.origin_xy_m[0] + 2 * grid.cell_m
     assert kept.bounds[0] <= x0 + grid.cell_m  # the speck reaches out to the corner
-    assert clean.bounds[0] > x0 + 5 * grid.cell_m
+    assert by_blob.bounds[0] > x0 + 5 * grid.cell_m  # removed from the volume (blob of 1 cell)
+    assert by_piece.bounds[0] > x0 + 5 * grid.cell_m  # removed from the mesh (a tiny separate piece)

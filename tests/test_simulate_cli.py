@@ -13,7 +13,7 @@ import pytest
 from cistern_archive.catalog.loader import load_record, record_paths
 from cistern_archive.sonar.interchange import read_scan
 
-CLI = [sys.executable, "-c", "from cistern_archive.cli import app; app(prog_name='cistern-archive')"]
+CLI = [sys.executable, "-m", "cistern_archive"]
 SPEC = """
 id: tiny-room
 name: Tiny room
@@ -104,3 +104,14 @@ def test_station_outside_exits_2(tmp_path: Path):
 def test_missing_spec_exits_2(tmp_path: Path):
     done = run("simulate", str(tmp_path / "nope.yaml"), "--out", str(tmp_path / "o"))
     assert done.returncode == 2 and "nope.yaml" in done.stderr
+
+
+def test_rerun_removes_scans_of_stations_that_are_gone(tmp_path: Path):
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(SPEC)
+    out = tmp_path / "o"
+    assert run("simulate", str(spec), "--out", str(out)).returncode == 0
+    fewer = SPEC.replace("  - {name: s2, x_m: 2.2, y_m: 0.9, yaw_deg: -5.0, depth_m: 1.0}\n", "")
+    spec.write_text(fewer)
+    assert run("simulate", str(spec), "--out", str(out)).returncode == 0
+    assert sorted(p.name for p in (out / "data" / "tiny-room").iterdir()) == ["s1.npz", "truth.json"]

@@ -190,3 +190,22 @@ def test_corridor_ring_has_constant_width():
     lengths = probe_lengths([ring], (5.0, 0.0), 90.0, 5, 0.5)
     np.testing.assert_allclose(lengths, 1.4)
     np.testing.assert_allclose(probe_lengths([ring], (10.0, 4.0), 0.0, 3, 0.5), 1.4)
+
+
+def test_spec_validation_names_the_problem(tmp_path: Path):
+    from pydantic import ValidationError
+
+    from cistern_archive.errors import CatalogError
+
+    with pytest.raises(ValidationError, match="exactly one of"):
+        RingSpec(rectangle=(0, 0, 1, 1), ellipse=(0, 0, 1, 1))
+    with pytest.raises(ValidationError, match="x_max > x_min"):
+        RingSpec(rectangle=(1, 0, 0, 1))
+    with pytest.raises(ValidationError, match="stations, routes"):
+        SimulationSpec(id="x", name="x", site=SiteSpec(levels=[LevelSpec(depth_m=0, walls=RingSpec(rectangle=(0, 0, 1, 1)))]))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("id: x\nname: x\nsite:\n  levels: []\nstations: [{name: a, x_m: 0, y_m: 0}]\nsurprise: 1\n")
+    with pytest.raises(CatalogError) as info:
+        load_spec(bad)
+    text = str(info.value)
+    assert f"{bad}:4: site.levels" in text and f"{bad}:6: surprise: unknown field" in text

@@ -130,3 +130,17 @@ def test_nan_and_nonpositive_weights_are_handled():
     poses = WLSLocalizer().localize(scans(4), ms, WLSParams())
     assert poses.placed.all()
     assert_allclose(poses.xy_m, TRUTH, atol=1e-9)
+
+
+def test_heading_corrections_are_composed():
+    """Scan 1's compass reads 10° high: z_12 is seen rotated by 10° in m_1, and z_01 says so."""
+    e1 = math.radians(10.0)
+    c, s = math.cos(e1), math.sin(e1)
+    rot = np.array([[c, -s], [s, c]])
+    ms = [m(0, 1, dyaw=-e1), m(1, 2, rot @ (TRUTH[2] - TRUTH[1]), dyaw=e1)]
+    poses = WLSLocalizer().localize(scans(3), ms, WLSParams(third_scan=False))
+    assert_allclose(poses.xy_m, TRUTH[:3], atol=1e-12)
+    assert_allclose(poses.yaw_rad - np.array([0.0, 0.1, 0.2]), [0.0, -e1, 0.0], atol=1e-12)
+    flat = WLSLocalizer().localize(scans(3), ms, WLSParams(third_scan=False, use_yaw=False))
+    assert_allclose(flat.yaw_rad, [0.0, 0.1, 0.2])
+    assert np.abs(flat.xy_m[2] - TRUTH[2]).max() > 0.05

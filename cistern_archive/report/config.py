@@ -27,7 +27,9 @@ class ReportConfig(BaseModel):
         default=1.0, ge=0, description="height the outermost slices are extruded above and below"
     )
     iso_level: float = Field(default=0.6, gt=0, lt=1, description="occupancy probability of the isosurface")
-    smooth_sigma_cells: float = Field(default=0.6, ge=0, description="Gaussian blur of the volume before meshing")
+    smooth_sigma_cells: float = Field(default=0.8, ge=0, description="Gaussian blur of the volume before meshing")
+    min_blob_cells: int = Field(default=6, ge=0, description="occupied blobs smaller than this are not meshed")
+    dilate_cells: int = Field(default=1, ge=0, le=5, description="horizontal dilation of walls before meshing")
     smooth_iterations: int = Field(default=20, ge=0, description="Taubin smoothing passes of the mesh")
     min_component_fraction: float = Field(
         default=0.01, ge=0, lt=1, description="drop mesh pieces with fewer triangles than this share"

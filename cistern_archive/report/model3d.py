@@ -1,9 +1,13 @@
 """The 3D model of a site: isosurface of the occupancy volume, smoothed, decimated, rendered and exported.
 
 Sec. III-E of the paper visualises the evidence grid "using isosurface extraction". Here the volume of
-:func:`cistern_archive.grid.volume.stack_slices` is blurred slightly, closed with a border of free space
-so that the surface has caps, and cut at ``iso_level`` with :func:`skimage.measure.marching_cubes`.
-The mesh is Taubin-smoothed (no shrinkage) and quadric-decimated to ``max_faces`` triangles.
+:func:`cistern_archive.grid.volume.stack_slices` is cleaned for display: occupied blobs of fewer than
+``min_blob_cells`` cells per layer (isolated echoes) are set to unknown, the occupancy is dilated by
+``dilate_cells`` horizontally so that a wall seen as a broken one-cell line becomes a continuous sheet,
+and blurred slightly. The volume is closed with a border of free space so that the surface has caps,
+and cut at ``iso_level`` with :func:`skimage.measure.marching_cubes`. The mesh is Taubin-smoothed (no
+shrinkage) and quadric-decimated to ``max_faces`` triangles. The dilation thickens walls by about a
+cell on each side; the model is for seeing the site, dimensions are measured on the grid itself.
 
 Mesh coordinates are the map frame in metres with z up (``z = -depth``); the point array ``depth_m``
 holds the depth the renders are coloured by.
@@ -50,7 +54,31 @@ VIEWS = (
 )
 
 
-def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0):
+def display_field(volume: Volume, *, min_blob_cells: int = 0, dilate_cells: int = 0, sigma_cells: float = 0.0) -> np.ndarray:
+    """The occupancy volume cleaned for meshing (see the module docstring); float32, same shape."""
+    field = np.asarray(volume.probability, dtype=np.float32).copy()
+    if min_blob_cells > 1:
+        structure = np.ones((3, 3), dtype=bool)
+        layers = {}
+        for k in range(field.shape[0]):
+            key = field[k].tobytes()
+            if key not in layers:
+                labels, n = ndimage.label(field[k] > 0.5, structure=structure)
+                sizes = np.bincount(labels.ravel(), minlength=n + 1)
+                small = (sizes < min_blob_cells) & (np.arange(n + 1) > 0)
+                layers[key] = small[labels]
+            field[k][layers[key]] = 0.5
+    if dilate_cells > 0:
+        size = 2 * dilate_cells + 1
+        field = ndimage.grey_dilation(field, size=(1, size, size))
+    if sigma_cells > 0:
+        sigma_z = sigma_cells * volume.cell_m / volume.dz_m
+        field = ndimage.gaussian_filter(field, sigma=(sigma_z, sigma_cells, sigma_cells), mode="nearest")
+    return field
+
+
+def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0, min_blob_cells: int = 0,
+               dilate_cells: int = 0):
     """Triangle mesh of the surface ``probability == level`` (a :class:`pyvista.PolyData`).
 
     Parameters
@@ -61,6 +89,8 @@ def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0):
         occupied cells only.
     sigma_cells : float, keyword-only
         Gaussian blur (in horizontal cells; scaled to the layer spacing vertically) before meshing.
+    min_blob_cells, dilate_cells : int, keyword-only
+        Cleaning of :func:`display_field`.
 
     Returns
     -------
@@ -69,10 +99,7 @@ def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0):
     """
     import pyvista
 
-    field = np.asarray(volume.probability, dtype=np.float32)
-    if sigma_cells > 0:
-        sigma_z = sigma_cells * volume.cell_m / volume.dz_m
-        field = ndimage.gaussian_filter(field, sigma=(sigma_z, sigma_cells, sigma_cells), mode="nearest")
+    field = display_field(volume, min_blob_cells=min_blob_cells, dilate_cells=dilate_cells, sigma_cells=sigma_cells)
     if not np.any(field >= level):
         return None
     padded = np.pad(field, 1, mode="constant", constant_values=0.0)
@@ -89,7 +116,8 @@ def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0):
 
 def build_mesh(volume: Volume, config: ReportConfig):
     """Isosurface, smooth and decimate; returns the mesh with ``depth_m`` and normals, or ``None``."""
-    mesh = isosurface(volume, level=config.iso_level, sigma_cells=config.smooth_sigma_cells)
+    mesh = isosurface(volume, level=config.iso_level, sigma_cells=config.smooth_sigma_cells,
+                      min_blob_cells=config.min_blob_cells, dilate_cells=config.dilate_cells)
     if mesh is None or mesh.n_cells == 0:
         return None
     mesh = drop_specks(mesh, config.min_component_fraction)

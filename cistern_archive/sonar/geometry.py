@@ -111,21 +111,38 @@ def visibility_polygon(origin: np.ndarray, rings: Sequence[Ring], max_range_m: f
     return np.asarray(origin)[None, :] + ranges[:, None] * np.column_stack([np.cos(angles), np.sin(angles)])
 
 
+def _visible_ranges(origin: np.ndarray, rings: Sequence[Ring], max_range_m: float, n_rays: int) -> np.ndarray:
+    angles = np.linspace(-np.pi, np.pi, n_rays, endpoint=False)
+    ranges, _ = ray_cast(origin, angles, rings)
+    return np.minimum(ranges, max_range_m)
+
+
+def _seen(points: np.ndarray, origin: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+    """Which points lie in the star-shaped region ``ranges`` (one per ray, from -pi) around ``origin``."""
+    d = points - origin
+    n_rays = ranges.size
+    index = np.round((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_rays).astype(np.int64) % n_rays
+    return np.hypot(d[:, 0], d[:, 1]) <= ranges[index]
+
+
 def overlap_fraction(
-    a: np.ndarray, b: np.ndarray, rings: Sequence[Ring], max_range_m: float, cell_m: float = 0.05
+    a: np.ndarray, b: np.ndarray, rings: Sequence[Ring], max_range_m: float, cell_m: float = 0.05,
+    n_rays: int = 720,
 ) -> float:
     """Shared fraction of the areas seen from stations ``a`` and ``b``: |Va ∩ Vb| / min(|Va|, |Vb|).
 
-    The visible regions are rasterised on a ``cell_m`` grid.
+    The visible regions (star-shaped: ``n_rays`` rays cast from each station, cut at ``max_range_m``) are
+    rasterised on a ``cell_m`` grid.
     """
-    va = visibility_polygon(a, rings, max_range_m)
-    vb = visibility_polygon(b, rings, max_range_m)
-    both = np.vstack([va, vb])
-    lo, hi = both.min(axis=0), both.max(axis=0)
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    ra = _visible_ranges(a, rings, max_range_m, n_rays)
+    rb = _visible_ranges(b, rings, max_range_m, n_rays)
+    lo = np.minimum(a - ra.max(), b - rb.max())
+    hi = np.maximum(a + ra.max(), b + rb.max())
     xs = np.arange(lo[0], hi[0] + cell_m, cell_m)
     ys = np.arange(lo[1], hi[1] + cell_m, cell_m)
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
-    in_a = MplPath(va).contains_points(grid)
-    in_b = MplPath(vb).contains_points(grid)
+    in_a = _seen(grid, a, ra)
+    in_b = _seen(grid, b, rb)
     smaller = min(int(in_a.sum()), int(in_b.sum()))
     return float((in_a & in_b).sum() / smaller) if smaller else 0.0

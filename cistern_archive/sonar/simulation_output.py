@@ -7,6 +7,9 @@ Layout under the output root ``OUT`` (which is a catalog root)::
     OUT/data/<id>/truth.json            true poses, walls per depth, true reference dimensions
     OUT/specs/<id>.yaml                 a copy of the spec, unless the spec already lives under OUT
 
+``OUT/data/<id>/`` belongs to the simulation: ``.npz`` files left there by an earlier run of the same
+spec that the new run does not write (e.g. a route now has fewer stations) are removed.
+
 Truth poses in the record and in ``truth.json`` are in the site's map frame: x east, y north (m), yaw in
 degrees counter-clockwise from east. Reference probes are given in the frame of a station: ``inside`` is
 relative to that station's true position, axes east/north, ``direction_deg`` counter-clockwise from east.
@@ -195,6 +198,10 @@ def write_site(site: SimulatedSite, out: Path, *, spec_path: Path | None = None,
         relative = f"data/{spec_id}/{s.pose.station}.npz"
         os.chmod(write_scan(s.scan, out / relative), FILE_MODE)
         scan_files.append(relative)
+    written = {Path(f).name for f in scan_files}
+    for stale in sorted(data_dir.glob("*.npz")):
+        if stale.name not in written:
+            stale.unlink()
     spec_ref = None
     if spec_path is not None:
         spec_path = Path(spec_path).resolve()

@@ -26,12 +26,15 @@ class Environment:
     rings : tuple of ndarray
         The same walls as closed vertex rings (K, 2), the form :mod:`cistern_archive.sonar.simulator`
         takes.
+    centre_line : ndarray or None, shape (V, 2)
+        A gallery's centre line (``None`` for rooms).
     """
 
     walls: np.ndarray
     kind: str
     free_points: np.ndarray
     rings: tuple[np.ndarray, ...] = ()
+    centre_line: np.ndarray | None = None
 
 
 def cast_rays(origin: np.ndarray, angles: np.ndarray, walls: np.ndarray) -> np.ndarray:
@@ -162,7 +165,17 @@ def random_gallery(rng: np.random.Generator, length_m: float = 24.0) -> Environm
     walls = _polygon_walls(outline)
     lo, hi = outline.min(axis=0), outline.max(axis=0)
     free = _free_points(walls, (lo[0], hi[0], lo[1], hi[1]), rng, n=800)
-    return Environment(walls, "gallery", free, (outline,))
+    return Environment(walls, "gallery", free, (outline,), centre)
+
+
+def stations_along(line: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Points every ``spacing_m`` along a polyline (its first vertex included)."""
+    seg = np.diff(line, axis=0)
+    lengths = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    at = np.arange(0.0, cum[-1], spacing_m)
+    k = np.clip(np.searchsorted(cum, at, side="right") - 1, 0, len(seg) - 1)
+    return line[k] + seg[k] * ((at - cum[k]) / lengths[k])[:, None]
 
 
 def random_environment(rng: np.random.Generator) -> Environment:

@@ -3,12 +3,14 @@
 Probe (``method="probe"``)
     From the probe's inside point, walk along ``+direction`` and ``-direction`` to the first occupied
     cell (log-odds above ``occupied_log_odds``) on each side; the measurement is the distance between the
-    two walls, each taken at the middle of its first cell (``edge="centre"``, default) or at the cell's
-    inner edge (``edge="inner"``, the paper's count "from one inside edge to the other"). The inverse
-    sonar model marks the cell that contains the echo, so the wall lies anywhere in that cell and its
-    centre is the unbiased estimate; the inner edge is on average half a cell inside the wall on each
-    side, i.e. one cell short over a width (measured: −0.055 m vs −0.005 m mean width error on
-    synthetic pools, ``benchmarks/RESULTS.md``). ``repeats``
+    two walls, each taken at the first wall cell's inner edge (``edge="inner"``, default, the paper's
+    count "from one inside edge to the other") or at the middle of that cell (``edge="centre"``). The
+    inverse sonar model marks the cell that contains the echo, so with exact ranges the wall lies
+    anywhere in that cell: the centre is then unbiased and the inner edge half a cell short per side
+    (synthetic pools: −0.005 m vs −0.055 m mean width error). The simulated Micron's echoes come back
+    about a centimetre long per side (the beam's off-axis rays travel farther), which the inner edge
+    partly cancels: on the simulated pool ``inner`` measures 0.021 / 0.025 m median width / length
+    error and ``centre`` 0.030 / 0.025 m (``benchmarks/RESULTS.md``). ``repeats``
     parallel probes are spaced ``spacing_m`` apart across the direction, centred on the inside point;
     the row's value is their mean and their spread is the paper's probe standard deviation.
 
@@ -53,7 +55,7 @@ class MosaicParams(StageParams):
     max_probe_m: float = Field(60.0, gt=0, description="give up a probe side after this distance")
     step_fraction: float = Field(0.1, gt=0, le=1, description="probe sampling step, in cells")
     frame_rotation: Literal["none", "yaw"] = "none"
-    edge: Literal["inner", "centre", "centroid"] = "centre"
+    edge: Literal["inner", "centre", "centroid"] = "inner"
 
 
 class MosaicComparator:

@@ -8,6 +8,12 @@ of measurement of ``d_ij = p_j - p_i`` (eq. 7):
 3. ``z_ik + z_kj`` for every third scan ``k`` with both matches converged,
 4. ``-(z_jk + z_ki)`` likewise through the reverse matches.
 
+A match also carries a heading correction (the matcher's θ), and ``z_kj`` is measured in scan k's
+compass frame. The sums and negations above are therefore done as compositions of planar motions
+(:func:`compose`, :func:`invert`), which reduce to the paper's plain sums when the corrections are zero;
+positions are chained the same way, so a scan whose compass reads 2° off does not bend the rest of the
+site by 2°.
+
 Setting ``dS/dd_ij = 0`` (eq. 9) gives the weighted mean of eq. 10. Each direct measurement is
 weighted by its converged weight ``w_mu`` (eq. 6). The paper derives the pseudo-measurements' weights
 "from the first two in the same manner"; here a chained measurement gets ``w_a * w_b / (w_a + w_b)``,
@@ -77,6 +83,8 @@ class WLSLocalizer:
         if p.solve == "global":
             edges.update({(i, j): combine(i, j, z, n) for (i, j) in z if i < j and (i, j) not in edges})
         edges = {k: v for k, v in edges.items() if v is not None}
+        if not p.use_yaw:
+            edges = {k: (d * np.array([1.0, 1.0, 0.0]), w) for k, (d, w) in edges.items()}
         ref = next((k for k in range(n) if any(k in pair for pair in z)), -1)
         xy = np.full((n, 2), np.nan)
         yaw_corr = np.zeros(n)
@@ -86,8 +94,6 @@ class WLSLocalizer:
                 _chain(ref, edges, xy, yaw_corr, placed)
             else:
                 _global(ref, edges, xy, yaw_corr, placed)
-        if not p.use_yaw:
-            yaw_corr[:] = 0.0
         yaw = np.array([s.yaw_rad for s in scans]) + np.where(placed, yaw_corr, 0.0)
         why = tuple("" if placed[k] else _unplaced_reason(k, ref, n, reasons, edges) for k in range(n))
         return Poses(xy_m=xy, yaw_rad=yaw, placed=placed, reasons=why, reference=ref)
@@ -107,10 +113,23 @@ def converged_measurements(matches: Sequence[MatchResult], min_weight: float) ->
     return out
 
 
-def _series(a: Measurement, b: Measurement, sign: float) -> Measurement:
-    """The pseudo-measurement ``sign * (z_a + z_b)`` with the weight of a sum of independent terms."""
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``z_ik`` then ``z_kj`` → ``z_ij``: ``z_kj``'s translation is in scan k's compass frame, which is
+    scan i's turned by ``z_ik``'s heading correction; with no heading corrections this is ``a + b``."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
+
+
+def invert(a: np.ndarray) -> np.ndarray:
+    """``z_ji`` → an estimate of ``z_ij`` (``-z_ji`` when there is no heading correction)."""
+    c, s = np.cos(-a[2]), np.sin(-a[2])
+    return np.array([-(c * a[0] - s * a[1]), -(s * a[0] + c * a[1]), -a[2]])
+
+
+def _series(a: Measurement, b: Measurement) -> Measurement:
+    """The pseudo-measurement ``z_a ∘ z_b`` with the weight of a sum of independent terms."""
     (za, wa), (zb, wb) = a, b
-    return sign * (za + zb), wa * wb / (wa + wb)
+    return compose(za, zb), wa * wb / (wa + wb)
 
 
 def estimates(i: int, j: int, z: dict[tuple[int, int], Measurement], n: int) -> list[Measurement]:
@@ -120,14 +139,15 @@ def estimates(i: int, j: int, z: dict[tuple[int, int], Measurement], n: int) -> 
         out.append(z[(i, j)])
     if (j, i) in z:
         zji, wji = z[(j, i)]
-        out.append((-zji, wji))
+        out.append((invert(zji), wji))
     for k in range(n):
         if k in (i, j):
             continue
         if (i, k) in z and (k, j) in z:
-            out.append(_series(z[(i, k)], z[(k, j)], 1.0))
+            out.append(_series(z[(i, k)], z[(k, j)]))
         if (j, k) in z and (k, i) in z:
-            out.append(_series(z[(j, k)], z[(k, i)], -1.0))
+            zji, w = _series(z[(j, k)], z[(k, i)])
+            out.append((invert(zji), w))
     return out
 
 
@@ -149,7 +169,7 @@ def _neighbours(edges: dict[tuple[int, int], Measurement]) -> dict[int, list[tup
     adj: dict[int, list[tuple[int, np.ndarray]]] = {}
     for (i, j), (d, _) in sorted(edges.items()):
         adj.setdefault(i, []).append((j, d))
-        adj.setdefault(j, []).append((i, -d))
+        adj.setdefault(j, []).append((i, invert(d)))
     return adj
 
 
@@ -163,8 +183,9 @@ def _chain(ref: int, edges: dict, xy: np.ndarray, yaw: np.ndarray, placed: np.nd
         a = queue.popleft()
         for b, d in adj.get(a, []):
             if not placed[b]:
-                xy[b] = xy[a] + d[:2]
-                yaw[b] = yaw[a] + d[2]
+                pose_b = compose(np.array([xy[a, 0], xy[a, 1], yaw[a]]), d)
+                xy[b] = pose_b[:2]
+                yaw[b] = pose_b[2]
                 placed[b] = True
                 queue.append(b)
 
@@ -186,7 +207,8 @@ def _global(ref: int, edges: dict, xy: np.ndarray, yaw: np.ndarray, placed: np.n
         if i in col:
             row[col[i]] -= 1.0
         rows.append(row)
-        rhs.append(d)
+        rotated = compose(np.array([0.0, 0.0, yaw[i]]), d)
+        rhs.append(np.array([rotated[0], rotated[1], d[2]]))
         w.append(np.sqrt(weight))
     a = np.array(rows) * np.array(w)[:, None]
     b = np.array(rhs) * np.array(w)[:, None]
