@@ -15,7 +15,7 @@ false success rate (converged with no overlap, or with an error above 0.5 m).
 
 External peers (the ``peers`` extra) are run when they import: Open3D's point-to-point ICP (from the
 zero pose; converged when fitness ≥ 0.5 and inlier RMSE ≤ 0.1 m) and OpenKarto's correlative scan
-matcher (``karto-scanmatcher``; 5 m search window, 0.03 m grid, ±25° yaw; converged when its response
+matcher (``karto-scanmatcher``; 5 m search window, 0.025 m grid, ±25° yaw; converged when its response
 ≥ ``KartoCorrelative.MIN_RESPONSE``). Their convergence rules are this script's, as neither library
 reports an honest flag of its own.
 
@@ -110,7 +110,7 @@ class KartoCorrelative:
         self.karto = karto
         cfg = karto.ScanMatcherConfig()
         cfg.search_size = 5.0
-        cfg.resolution = 0.03
+        cfg.resolution = 0.025
         cfg.coarse_search_angle_offset = math.radians(25.0)
         cfg.range_threshold = 20.0
         self.config = cfg

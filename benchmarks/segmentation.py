@@ -22,18 +22,18 @@ Usage::
 
 Recorded results
 ----------------
-``.venv/bin/python benchmarks/segmentation.py --seeds 3 --figures /tmp/segfig`` (bins 4 cm; the
-catalog's seed plus two more per spec; 65 s on the shared 2-core machine):
+``.venv/bin/python benchmarks/segmentation.py --seeds 3 --json`` (bins 4 cm; the catalog's seed plus two
+more per spec; 11 s on the shared 2-core machine):
 
 ==============  ======  ======  =========  ==========  ======  ======
 sites           method  beams   <= 1 bin   median |e|  false   missed
 ==============  ======  ======  =========  ==========  ======  ======
-vertical walls  paper   24 848  0.759      0.021 m     0.068   0.000
-vertical walls  cfar    24 848  0.827      0.018 m     0.022   0.006
+vertical walls  paper   24 838  0.758      0.021 m     0.069   0.000
+vertical walls  cfar    24 838  0.825      0.018 m     0.023   0.006
 lair-pool       paper    4 800  0.769      0.020 m     0.051   0.000
 lair-pool       cfar     4 800  0.833      0.019 m     0.037   0.000
-water-gallery   paper    8 048  0.769      0.020 m     0.113   0.000
-water-gallery   cfar     8 048  0.833      0.016 m     0.036   0.018
+water-gallery   paper    8 038  0.766      0.020 m     0.117   0.000
+water-gallery   cfar     8 038  0.829      0.016 m     0.037   0.018
 bell-cistern    paper   10 800  0.226      0.101 m     0.216   0.000
 bell-cistern    cfar    10 800  0.166      0.158 m     0.423   0.001
 ==============  ======  ======  =========  ==========  ======  ======

@@ -141,3 +141,21 @@ def test_percent_difference_formula():
     assert stats["percent_difference"] == pytest.approx(percent_difference(3.5 / 7.2, 3.61 / 7.21))
     assert stats["probe_std_width_m"] == pytest.approx(np.std([3.4, 3.6], ddof=1))
     assert stats["max_abs_diff_m"] == pytest.approx(0.11)
+
+
+def test_probe_through_a_gap_is_dropped_with_a_note():
+    lo = np.zeros((60, 120), np.float32)  # 3 m x 6 m, cells 0.05 m
+    lo[5, :] = 4.0
+    lo[45, :] = 4.0
+    lo[55, :] = 4.0  # a second wall beyond the first
+    lo[45, 60] = 0.0  # a one-cell gap in the upper wall
+    grid = MapResult(grids=(EvidenceGrid(lo, (0.0, 0.0), 0.05, 0.0),))
+    poses = Poses(xy_m=np.zeros((4, 2)), yaw_rad=np.zeros(4), placed=np.ones(4, bool), reasons=("",) * 4, reference=0)
+    ref = [ReferenceDimension(name="width", value_m=2.0, kind="truth", measure=Probe(
+        inside=(3.025, 1.25), direction_deg=90.0, repeats=5, spacing_m=0.1))]
+    (row,) = MosaicComparator().compare(grid, poses, ref, STATIONS, MosaicParams(edge="inner")).rows
+    assert row.map_m == pytest.approx(2.0 - 0.05, abs=1e-6)
+    assert len(row.probes) == len(row.probe_lines) < 5
+    assert "outliers" in row.note
+    (raw,) = MosaicComparator().compare(grid, poses, ref, STATIONS, MosaicParams(edge="inner", reject_outliers=False)).rows
+    assert raw.map_m > row.map_m

@@ -209,3 +209,13 @@ def test_spec_validation_names_the_problem(tmp_path: Path):
         load_spec(bad)
     text = str(info.value)
     assert f"{bad}:4: site.levels" in text and f"{bad}:6: surprise: unknown field" in text
+
+
+def test_visibility_and_overlap_in_a_box():
+    from cistern_archive.sonar.geometry import ring_area, visibility_polygon
+
+    assert ring_area(visibility_polygon(np.array([2.0, 1.0]), BOX, 10.0)) == pytest.approx(24.0, rel=1e-3)
+    assert ring_area(visibility_polygon(np.array([2.0, 1.0]), BOX, 0.5)) == pytest.approx(math.pi / 4, rel=1e-3)
+    a, b = np.array([1.0, 1.0]), np.array([5.0, 3.0])
+    assert overlap_fraction(a, b, BOX, 10.0) == pytest.approx(1.0, abs=0.01)
+    assert overlap_fraction(a, b, BOX, 1.0) == 0.0

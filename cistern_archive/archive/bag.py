@@ -51,7 +51,8 @@ def bagging_date(built_at: str | None) -> str:
     if epoch:
         return dt.datetime.fromtimestamp(int(epoch), tz=dt.timezone.utc).strftime("%Y-%m-%d")
     if built_at:
-        return dt.datetime.fromisoformat(built_at.replace("Z", "+00:00")).astimezone(dt.timezone.utc).strftime("%Y-%m-%d")
+        built = dt.datetime.fromisoformat(built_at.replace("Z", "+00:00"))
+        return built.astimezone(dt.timezone.utc).strftime("%Y-%m-%d")
     return dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d")
 
 
@@ -154,8 +155,8 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
             _write_json(staged / "provenance" / "build-key.json", {"build_key": plan.key.key, **plan.key.material})
             _write_json(staged / "provenance" / "result-provenance.json",
                         build.result.provenance.model_dump(mode="json") if build.result.provenance else {})
-            _write_json(staged / "provenance" / "inputs.json",
-                        [{k: row[k] for k in ("relative_path", "role", "sha256", "size", "ingested_at")} for row in inputs])
+            fields = ("relative_path", "role", "sha256", "size", "ingested_at")
+            _write_json(staged / "provenance" / "inputs.json", [{k: row[k] for k in fields} for row in inputs])
             _write_json(staged / "provenance" / "events.json", _events(store, site_id, {r["sha256"] for r in inputs}))
             store.index.add_event("publish", agent=store.agent, outcome="success", site_id=site_id,
                                   detail={"bag": str(bag), "build_key": plan.key.key})

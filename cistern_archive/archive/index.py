@@ -160,7 +160,8 @@ class Index:
     # ---------------------------------------------------------------------------------- runs
     def start_run(self, run_id: str, *, catalog: str, out: str, executor: str, agent: str) -> None:
         self.db.execute(
-            "INSERT INTO runs(id, started_at, status, catalog, out, executor, agent) VALUES (?, ?, 'running', ?, ?, ?, ?)",
+            "INSERT INTO runs(id, started_at, status, catalog, out, executor, agent) "
+            "VALUES (?, ?, 'running', ?, ?, ?, ?)",
             (run_id, utc_now(), catalog, out, executor, agent),
         )
 
@@ -199,7 +200,8 @@ class Index:
         if not isinstance(detail, str):
             detail = json.dumps(detail, sort_keys=True)
         self.db.execute(
-            "INSERT INTO events(time, type, agent, outcome, run_id, site_id, sha256, detail) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO events(time, type, agent, outcome, run_id, site_id, sha256, detail) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (utc_now(), type, agent, outcome, run_id, site_id, sha256, detail),
         )
 

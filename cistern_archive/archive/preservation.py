@@ -103,4 +103,5 @@ def write_mesh(build: SiteBuild, folder: Path) -> list[Path]:
 def write_preservation(build: SiteBuild, folder: Path) -> list[Path]:
     """Every preservation file of a built site under ``folder``."""
     folder.mkdir(parents=True, exist_ok=True)
-    return write_scans(build, folder) + write_tables(build, folder) + write_grids(build, folder) + write_mesh(build, folder)
+    written = write_scans(build, folder) + write_tables(build, folder)
+    return written + write_grids(build, folder) + write_mesh(build, folder)

@@ -13,7 +13,7 @@ from cistern_archive.commands import EXIT_OK
 
 
 def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, seed: int,
-                segmentation: str) -> dict:
+                segmentation: str, min_range_m: float) -> dict:
     """Read two scan files, segment them, match ``moving`` against ``reference``; a JSON-able dict."""
     from cistern_archive.catalog.models import Segmentation
     from cistern_archive.pipeline.registry import default_registry
@@ -24,7 +24,7 @@ def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, se
     registry = default_registry()
     plugin = registry.load("matcher", matcher)
     checked = registry.check_params("matcher", matcher, params)
-    settings = Segmentation(method=segmentation)
+    settings = Segmentation(method=segmentation, min_range_m=min_range_m)
     scan_a, scan_b = (segment(read_scans(path)[0], settings) for path in (reference, moving))
     start = time.perf_counter()
     result = plugin.instance.match(scan_a, scan_b, checked, rng=pair_rng(seed, 0, 1))
@@ -53,6 +53,8 @@ def register(app: typer.Typer) -> None:
         params: str = typer.Option("{}", "--params", help="Matcher parameters as a JSON object."),
         seed: int = typer.Option(0, "--seed", help="Random seed."),
         segmentation: str = typer.Option("paper", "--segmentation", help="Beam segmentation: paper or cfar."),
+        min_range: float = typer.Option(0.4, "--min-range", min=0.0,
+                                        help="Blank echoes nearer than this (m): the head's ring-down and the vehicle."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
     ) -> None:
         """Locate MOVING in the frame of REFERENCE: p_moving - p_reference."""
@@ -62,7 +64,8 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(f"--params is not JSON: {exc}") from None
         if not isinstance(parsed, dict):
             raise typer.BadParameter("--params must be a JSON object")
-        out = match_files(reference, moving, matcher=matcher, params=parsed, seed=seed, segmentation=segmentation)
+        out = match_files(reference, moving, matcher=matcher, params=parsed, seed=seed, segmentation=segmentation,
+                          min_range_m=min_range)
         if as_json:
             typer.echo(json.dumps(out))
         else:

@@ -127,7 +127,15 @@ def _outcome(task: SiteTask, result: Any) -> SiteOutcome:
     return SiteOutcome(id=task.site_id, status="failed", error=f"worker: {message}", build_key=task.build_key)
 
 
-def _record_outcome(archive: Archive, run_id: str, outcome: SiteOutcome) -> None:
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return -1
+
+
+def _record_outcome(archive: Archive, run_id: str, outcome: SiteOutcome, out: Path) -> None:
+    """``build`` event, and for a published site its artifacts and a ``publish`` event."""
     index = archive.index
     with index.transaction():
         index.add_event("build", agent=archive.agent, outcome="success" if outcome.status == "ok" else "failure",
@@ -136,7 +144,7 @@ def _record_outcome(archive: Archive, run_id: str, outcome: SiteOutcome) -> None
                                 "seconds": outcome.timings_s.get("wall")})
         if outcome.artifacts:
             for path, sha256 in outcome.artifacts.items():
-                index.add_artifact(run_id, outcome.id, path, sha256, 0)
+                index.add_artifact(run_id, outcome.id, path, sha256, _size(out / outcome.id / path))
             index.add_event("publish", agent=archive.agent, outcome="success", run_id=run_id, site_id=outcome.id,
                             detail={"folder": outcome.id, "files": len(outcome.artifacts),
                                     "build_key": outcome.build_key})
@@ -279,7 +287,8 @@ def rebuild(
                 log.write(f"recovery: {abandoned} earlier run(s) into {out} never finished", "WARN")
             plans = [plan_site(loaded, store, registry, run_id, report_config) for loaded in selected]
             todo = [p for p in plans if force or not is_current(out / p.site_id, p.key.key)]
-            skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key, report=f"{p.site_id}/index.html")
+            skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key,
+                                   report=f"{p.site_id}/index.html")
                        for p in plans if p not in todo]
             summary.sites.extend(skipped)
             for outcome in skipped:
@@ -304,6 +313,12 @@ def rebuild(
     return summary
 
 
+def _fail_unfinished(tasks: list[SiteTask], done: set[str], summary: RebuildSummary, error: str) -> None:
+    for task in tasks:
+        if task.site_id not in done:
+            summary.sites.append(SiteOutcome(id=task.site_id, status="failed", build_key=task.build_key, error=error))
+
+
 def _execute(plans: list[SitePlan], summary: RebuildSummary, store: Archive, log: RunLog, progress: Progress, *,
              out: Path, catalog: Path, workers: int, scheduler: str | None, scheduler_file: Path | None,
              skipped: int, report_config: dict[str, Any] | None) -> None:
@@ -326,18 +341,19 @@ def _execute(plans: list[SitePlan], summary: RebuildSummary, store: Archive, log
             outcome = _outcome(task, result)
             done.add(task.site_id)
             summary.sites.append(outcome)
-            _record_outcome(store, summary.run_id, outcome)
+            _record_outcome(store, summary.run_id, outcome, out)
             _log_outcome(log, outcome)
             progress.site_done(outcome)
     except KeyboardInterrupt:
         summary.interrupted = True
         executor.close(cancel=True)
         executor = None
-        for task in tasks:
-            if task.site_id not in done:
-                summary.sites.append(SiteOutcome(id=task.site_id, status="failed", build_key=task.build_key,
-                                                 error="interrupted; the previous report (if any) is kept"))
+        _fail_unfinished(tasks, done, summary, "interrupted; the previous report (if any) is kept")
         log.write("interrupted", "ERROR")
+    except Exception as exc:  # the executor itself failed (e.g. the Dask scheduler went away)
+        message = f"executor {summary.executor} failed: {type(exc).__name__}: {exc}"
+        _fail_unfinished(tasks, done, summary, message + "; the previous report (if any) is kept")
+        log.write(message, "ERROR")
     finally:
         if executor is not None:
             executor.close()

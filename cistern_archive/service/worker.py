@@ -68,7 +68,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
     from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site
 
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     timings: dict[str, float] = {}
     staged: Path | None = None
     out = Path(task.out)
@@ -100,6 +100,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
         if staged is not None:
             discard(staged)
     timings["wall"] = round(time.perf_counter() - start, 6)
+    timings["cpu"] = round(time.process_time() - cpu_start, 6)
     return SiteOutcome(id=task.site_id, status=status, error=error, build_key=task.build_key, timings_s=timings,
                        report=f"{task.site_id}/index.html" if files else None, worker=worker_name(),
                        peak_rss_mb=peak_rss_mb(), attempts=1, artifacts=files, detail=detail)

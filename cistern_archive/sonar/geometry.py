@@ -106,8 +106,7 @@ def interpolate_slice(levels: Sequence[tuple[float, Slice]], depth_m: float) -> 
 def visibility_polygon(origin: np.ndarray, rings: Sequence[Ring], max_range_m: float, n_rays: int = 720) -> Ring:
     """The region seen from ``origin`` within ``max_range_m``, as a star-shaped ring of ``n_rays`` vertices."""
     angles = np.linspace(-np.pi, np.pi, n_rays, endpoint=False)
-    ranges, _ = ray_cast(origin, angles, rings)
-    ranges = np.minimum(ranges, max_range_m)
+    ranges = _visible_ranges(np.asarray(origin, dtype=np.float64), rings, max_range_m, n_rays)
     return np.asarray(origin)[None, :] + ranges[:, None] * np.column_stack([np.cos(angles), np.sin(angles)])
 
 

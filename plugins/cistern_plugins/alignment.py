@@ -8,8 +8,9 @@ the yaw correction of the moving scan.
 The convergence test (:func:`assess_alignment`, :func:`verdict`) asks four questions of a final pose:
 do enough moving points land on reference walls (inlier count and ratio among the points that fall
 inside the reference sonar's range), do the matched walls constrain both translation directions (the
-smaller eigenvalue of the point-to-line information matrix, per inlier — a straight featureless
-corridor fails it), and is the placement physically possible: a wall point of one scan must not lie
+smaller eigenvalue of the point-to-line information matrix, per inlier, must reach ``min_constraint``
+— a straight featureless corridor fails it — and the predicted standard deviation along the weakest
+direction must stay below ``max_weak_std_m``), and is the placement physically possible: a wall point of one scan must not lie
 in the free space the other sonar saw in front of its own echo on that bearing (the free-space
 violation ratio, checked both ways). Two scans of different places can share many near points by
 chance; they rarely avoid each other's free space.
@@ -128,6 +129,13 @@ class AlignmentQuality:
     violation_ratio: float = 0.0
 
     @property
+    def weak_std_m(self) -> float:
+        """Predicted standard deviation of the translation along its weakest direction:
+        ``rms / sqrt(lambda_min * inliers)`` (point-to-line Gauss-Newton, Censi 2007)."""
+        info = self.constraint * self.inliers
+        return self.rms_m / math.sqrt(info) if info > 0 else math.inf
+
+    @property
     def inlier_ratio(self) -> float:
         """Inliers among the moving points inside the reference sonar's range."""
         return self.inliers / self.candidates if self.candidates else 0.0
@@ -140,9 +148,10 @@ class ConvergenceThresholds:
     inlier_distance_m: float = 0.15
     min_inliers: int = 25
     min_inlier_ratio: float = 0.5
-    min_constraint: float = 0.1
+    min_constraint: float = 0.03
     max_violation_ratio: float = 0.09
     free_space_margin_m: float = 0.3
+    max_weak_std_m: float = 0.03
 
 
 class ConvergenceParams(StageParams):
@@ -151,14 +160,16 @@ class ConvergenceParams(StageParams):
     inlier_distance_m: float = Field(0.15, gt=0)
     min_inliers: int = Field(25, ge=3)
     min_inlier_ratio: float = Field(0.5, ge=0, le=1)
-    min_constraint: float = Field(0.1, ge=0)
+    min_constraint: float = Field(0.03, ge=0)
+    max_weak_std_m: float = Field(0.03, gt=0)
     max_violation_ratio: float = Field(0.09, ge=0, le=1)
     free_space_margin_m: float = Field(0.3, ge=0)
     min_points: int = Field(20, ge=3)
 
     def limits(self) -> ConvergenceThresholds:
         return ConvergenceThresholds(self.inlier_distance_m, self.min_inliers, self.min_inlier_ratio,
-                                     self.min_constraint, self.max_violation_ratio, self.free_space_margin_m)
+                                     self.min_constraint, self.max_violation_ratio, self.free_space_margin_m,
+                                     self.max_weak_std_m)
 
 
 def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
@@ -185,6 +196,9 @@ def verdict(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
         return f"inlier ratio {quality.inlier_ratio:.2f} < {limits.min_inlier_ratio:.2f}"
     if quality.constraint < limits.min_constraint:
         return f"walls constrain one direction only (constraint {quality.constraint:.3f} < {limits.min_constraint})"
+    if quality.weak_std_m > limits.max_weak_std_m:
+        return (f"weakly constrained: σ ≈ {quality.weak_std_m:.3f} m along the weakest direction "
+                f"(> {limits.max_weak_std_m} m)")
     if quality.violation_ratio > limits.max_violation_ratio:
         return (f"{100 * quality.violation_ratio:.0f} % of wall points fall in the other scan's free space "
                 f"(> {100 * limits.max_violation_ratio:.0f} %)")

@@ -15,8 +15,11 @@ from the best node) times ``ambiguity_ratio``, so every pose within that ratio o
 to the finest level and the runner-up peak is known exactly.
 
 Convergence is honest on three counts: the best score reaches ``min_score``; no distinct peak
-(a translation farther than ``ambiguity_distance_m`` from the best, at any yaw) scores within
-``ambiguity_ratio`` of it (Olson's ambiguity test); and the refined placement passes the shared test
+scores within ``ambiguity_ratio`` of it (Olson's ambiguity test) — a rival is a pose farther than
+``ambiguity_distance_m`` from the best, at any yaw, that is separated from the best by a valley: on the
+straight path between them the score (maximised over nearby yaws) drops below ``valley_ratio`` of the
+best. A rival joined to the best by a ridge is the same, elongated peak (a gallery seen along its
+axis), whose extent the shared constraint test judges; and the refined placement passes the shared test
 of :mod:`cistern_plugins.alignment`. The winning pose is refined to sub-cell accuracy by a few
 point-to-line ICP iterations, as Cartographer refines its correlative estimate with a local solver.
 """
@@ -56,6 +59,8 @@ class CorrelativeParams(ConvergenceParams):
     min_score: float = Field(0.15, ge=0, le=1)
     ambiguity_ratio: float = Field(0.9, gt=0, le=1)
     ambiguity_distance_m: float = Field(0.5, gt=0)
+    valley_ratio: float = Field(0.8, gt=0, le=1)
+    max_rivals: int = Field(30, ge=1)
     refine_iterations: int = Field(30, ge=0)
     free_space_penalty: float = Field(1.0, ge=0)
 
@@ -200,7 +205,7 @@ class CorrelativeMatcher:
         reason = ""
         if scores[0] < p.min_score:
             reason = f"best correlation score {scores[0]:.2f} < {p.min_score:.2f}"
-        rival = _rival(nodes, scores, angles, p)
+        rival = _rival(nodes, scores, angles, p, pyr, src)
         if not reason and rival is not None:
             reason = (f"ambiguous: a second peak {rival[0]:.2f} m / {rival[1]:.1f}° away scores "
                       f"{rival[2]:.2f} against the best {scores[0]:.2f}")
@@ -218,15 +223,33 @@ class CorrelativeMatcher:
         return _result(pose, float(scores[0]), not reason, reason, iterations, start, cov)
 
 
-def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: CorrelativeParams):
-    """The best candidate far from the winner, as (distance m, angle deg, score), or ``None``."""
+def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: CorrelativeParams,
+           pyr: LikelihoodPyramid, points: np.ndarray):
+    """The best distinct rival peak, as (distance m, angle deg, score), or ``None`` (see module docstring)."""
     d = np.hypot(nodes[:, 0] - nodes[0, 0], nodes[:, 1] - nodes[0, 1]) * p.resolution_m
     da = np.degrees(np.abs(angles[nodes[:, 2]] - angles[nodes[0, 2]]))
-    far = np.flatnonzero(d > p.ambiguity_distance_m)
-    if len(far) == 0:
-        return None
-    k = far[0]
-    return float(d[k]), float(da[k]), float(scores[k])
+    far = np.flatnonzero(d > p.ambiguity_distance_m)[: p.max_rivals]
+    for k in far:
+        if _valley(pyr, points, angles, nodes[0], nodes[k]) < p.valley_ratio * scores[0]:
+            return float(d[k]), float(da[k]), float(scores[k])
+    return None
+
+
+def _valley(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Lowest score on the straight path between nodes ``a`` and ``b`` (each path point scored at the
+    best yaw within two steps of the yaws of ``a`` and ``b``)."""
+    lo = max(0, min(a[2], b[2]) - 2)
+    hi = min(len(angles), max(a[2], b[2]) + 3)
+    sub = angles[lo:hi]
+    c, s = np.cos(sub)[:, None], np.sin(sub)[:, None]
+    cells = pyr.cells(np.stack([c * points[:, 0] - s * points[:, 1], s * points[:, 0] + c * points[:, 1]], axis=-1))
+    n = int(max(abs(b[0] - a[0]), abs(b[1] - a[1])))
+    t = np.linspace(0.0, 1.0, max(n, 2) + 1)[1:-1]
+    path = np.rint(a[:2] + t[:, None] * (b[:2] - a[:2])).astype(np.int64)
+    offsets = np.repeat(path, len(sub), axis=0)
+    idx = np.tile(np.arange(len(sub)), len(path))
+    sc = pyr.score(0, cells, offsets, idx).reshape(len(path), len(sub)).max(axis=1)
+    return float(sc.min()) if len(sc) else float("inf")
 
 
 def _result(pose: np.ndarray, score: float, converged: bool, reason: str, iterations: int, start: float,

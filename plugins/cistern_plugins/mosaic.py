@@ -12,7 +12,10 @@ Probe (``method="probe"``)
     partly cancels: on the simulated pool ``inner`` measures 0.021 / 0.025 m median width / length
     error and ``centre`` 0.030 / 0.025 m (``benchmarks/RESULTS.md``). ``repeats``
     parallel probes are spaced ``spacing_m`` apart across the direction, centred on the inside point;
-    the row's value is their mean and their spread is the paper's probe standard deviation.
+    the row's value is their mean and their spread is the paper's probe standard deviation. A probe
+    that slips through a gap in a wall (the paper's "holes in the map") measures to the next wall
+    beyond; with ``reject_outliers`` such probes (farther than ``max(outlier_min_m, 3 × 1.4826 × MAD)``
+    from the probes' median) are dropped and the row's note says which.
 
     **Frames.** With ``frame`` naming a station, ``inside`` is an offset from that station's placed
     position along the map's axes (east, north) and ``direction_deg`` is counter-clockwise from east:
@@ -56,6 +59,8 @@ class MosaicParams(StageParams):
     step_fraction: float = Field(0.1, gt=0, le=1, description="probe sampling step, in cells")
     frame_rotation: Literal["none", "yaw"] = "none"
     edge: Literal["inner", "centre", "centroid"] = "inner"
+    reject_outliers: bool = Field(True, description="drop probes that passed through a gap in a wall")
+    outlier_min_m: float = Field(0.15, ge=0, description="never call a probe within this of the median an outlier")
 
 
 class MosaicComparator:
@@ -79,16 +84,29 @@ class MosaicComparator:
 
 
 # ----------------------------------------------------------------------------------- measuring
-def _row(ref: "ReferenceDimension", depth: float, probes: list[float], lines: list, note: str) -> DimensionRow:
-    finite = [v for v in probes if math.isfinite(v)]
+def _row(
+    ref: "ReferenceDimension", depth: float, probes: list[float], lines: list, note: str,
+    p: MosaicParams | None = None,
+) -> DimensionRow:
+    keep = [k for k, v in enumerate(probes) if math.isfinite(v)]
+    notes = [note] if note else []
+    if len(keep) < len(probes):
+        notes.append(f"{len(probes) - len(keep)} of {len(probes)} probes found no wall on one side")
+    if p is not None and p.reject_outliers and len(keep) >= 3:
+        values = np.array([probes[k] for k in keep])
+        med = float(np.median(values))
+        mad = float(np.median(np.abs(values - med)))
+        inlier = np.abs(values - med) <= max(p.outlier_min_m, 3.0 * 1.4826 * mad)
+        if not inlier.all():
+            notes.append(f"{int((~inlier).sum())} of {len(probes)} probes dropped as outliers "
+                         f"(through a gap in a wall): {', '.join(f'{v:.2f}' for v in values[~inlier])} m")
+        keep = [k for k, ok in zip(keep, inlier) if ok]
+    finite = [probes[k] for k in keep]
     value = float(np.mean(finite)) if finite else float("nan")
-    missing = len(probes) - len(finite)
-    if missing and not note:
-        note = f"{missing} of {len(probes)} probes found no wall on one side"
     return DimensionRow(
         name=ref.name, map_m=value, reference_m=float(ref.value_m), reference_kind=ref.kind,
         diff_m=value - float(ref.value_m), depth_m=depth, probes=tuple(finite),
-        probe_lines=tuple(lines), note=note,
+        probe_lines=tuple(lines[k] for k in keep if k < len(lines)), note="; ".join(notes),
     )
 
 
@@ -112,7 +130,7 @@ def _measure(
         start, major = axes
         angle = major if probe.method == "auto-length" else major + math.pi / 2
     values, lines = repeated_probes(grid, occupied, start, angle, probe.repeats, probe.spacing_m, p)
-    return _row(ref, grid.depth_m, values, lines, "")
+    return _row(ref, grid.depth_m, values, lines, "", p)
 
 
 def pick_grid(map_result: MapResult, depth_m: float | None) -> EvidenceGrid | None:
@@ -164,8 +182,9 @@ def principal_axes(grid: EvidenceGrid, occupied: np.ndarray) -> tuple[np.ndarray
 def repeated_probes(
     grid: EvidenceGrid, occupied: np.ndarray, start: np.ndarray, angle: float, repeats: int, spacing: float,
     p: MosaicParams,
-) -> tuple[list[float], list[tuple[float, float, float, float]]]:
-    """``repeats`` parallel wall-to-wall measurements centred on ``start``."""
+) -> tuple[list[float], list[tuple[float, float, float, float] | None]]:
+    """``repeats`` parallel wall-to-wall measurements centred on ``start`` (a line per probe, ``None``
+    where the probe found no wall on one side)."""
     u = np.array([math.cos(angle), math.sin(angle)])
     normal = np.array([-u[1], u[0]])
     values, lines = [], []
@@ -177,6 +196,8 @@ def repeated_probes(
         if math.isfinite(plus + minus):
             a, b = origin - minus * u, origin + plus * u
             lines.append((float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+        else:
+            lines.append(None)
     return values, lines
 
 
