@@ -209,8 +209,9 @@ def rotate(v: np.ndarray, angle: float) -> np.ndarray:
     return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
-def gallery(site: str, matcher_names: list[str], catalog: Path) -> dict:
-    """Position error of ``wls`` and ``pose-graph`` on a simulated site, for each matcher."""
+def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: dict | None = None) -> dict:
+    """Position error of ``wls`` and ``pose-graph`` on a simulated site, for each matcher (with optional
+    per-matcher parameters, as a site record would give them)."""
     from cistern_archive.catalog.loader import load_record
     from cistern_archive.pipeline.runner import load_scan, pair_rng
     from cistern_archive.sonar.segmentation import segment
@@ -222,9 +223,10 @@ def gallery(site: str, matcher_names: list[str], catalog: Path) -> dict:
     true_xy = np.array([[truth[r.station].x_m, truth[r.station].y_m] for r in rec.scans])
     compass_err = [scans[k].yaw_rad - math.radians(truth[r.station].yaw_deg) for k, r in enumerate(rec.scans)]
     reg = default_registry()
-    out: dict = {"site": site, "scans": len(scans), "results": {}}
+    out: dict = {"site": site, "scans": len(scans), "matcher_params": matcher_params or {}, "results": {}}
     for mname in matcher_names:
         matcher = reg.load("matcher", mname).instance
+        mparams = matcher.Params.model_validate((matcher_params or {}).get(mname, {}))
         cache: dict[tuple[int, int], MatchResult] = {}
         for lname in ("wls", "pose-graph"):
             loc = reg.load("localizer", lname).instance
@@ -233,7 +235,7 @@ def gallery(site: str, matcher_names: list[str], catalog: Path) -> dict:
             matches = []
             for i, j in loc.pairs(len(scans), lp):
                 if (i, j) not in cache:
-                    r = matcher.match(scans[i], scans[j], matcher.Params(), rng=pair_rng(rec.seed, i, j))
+                    r = matcher.match(scans[i], scans[j], mparams, rng=pair_rng(rec.seed, i, j))
                     cache[(i, j)] = MatchResult(**{**r.__dict__, "i": i, "j": j})
                 matches.append(cache[(i, j)])
             poses = loc.localize(scans, matches, lp)
@@ -328,6 +330,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gallery", metavar="SITE", help="compare wls and pose-graph on a simulated catalog site")
     ap.add_argument("--gallery-matchers", default="pf-pairwise,correlative",
                     help="comma-separated matchers for --gallery")
+    ap.add_argument("--matcher-params", type=json.loads, default={},
+                    help='JSON {matcher: {param: value}} for --gallery, e.g. \'{"correlative": {"search_m": 4}}\'')
     ap.add_argument("--catalog", type=Path, default=Path(__file__).resolve().parents[1] / "catalog")
     ap.add_argument("--synthetic-gallery", type=int, metavar="N", help="wls vs pose-graph on N random galleries")
     ap.add_argument("--gallery-matcher", default="correlative", help="matcher for --synthetic-gallery")
@@ -340,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(g, allow_nan=True))
         return 0
     if args.gallery:
-        g = gallery(args.gallery, args.gallery_matchers.split(","), args.catalog)
+        g = gallery(args.gallery, args.gallery_matchers.split(","), args.catalog, args.matcher_params)
         for name, v in g["results"].items():
             print(f"{name:28s} placed {v['placed']}/{g['scans']}  converged pairs {v['pairs_converged']}/{v['pairs']}  "
                   f"median {v['median_position_error_m']:.3f} m  max {v['max_position_error_m']:.3f} m  "

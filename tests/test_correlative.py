@@ -39,3 +39,16 @@ def test_no_overlap_is_not_converged():
     flags = [CorrelativeMatcher().match(p.reference, p.moving, CorrelativeParams(), rng=rng).converged
              for p in (simulated_pair(rng, overlapping=False) for _ in range(6))]
     assert not any(flags)
+
+
+def test_ridge_is_not_a_rival_but_a_separate_peak_is():
+    """A rival joined to the best by a high ridge is the same peak; one behind a valley is ambiguous."""
+    from cistern_plugins.correlative import _valley
+
+    wall = np.column_stack([np.linspace(-3, 3, 121), np.zeros(121)])  # one long wall: a ridge along x
+    pyr = LikelihoodPyramid(wall, 0.05, 0.08, 2.0, 1)
+    angles = np.zeros(1)
+    best, along, across = np.array([0, 0, 0]), np.array([20, 0, 0]), np.array([0, 20, 0])
+    seg = wall[40:81]  # a 2 m piece of the wall, matched at several shifts along it
+    assert _valley(pyr, seg, angles, best, along) > 0.8
+    assert _valley(pyr, seg, angles, best, across) < 0.2

@@ -35,3 +35,19 @@ def test_too_few_points_gives_reason():
 def test_params_refuse_unknown_keys():
     with pytest.raises(ValueError):
         ICPParams(variant="point-to-plane")
+
+
+def test_corridor_is_reported_degenerate():
+    """Two scans of a straight featureless corridor: the along-axis shift is unobservable."""
+    from cistern_archive.testing.geometry import Environment
+    from cistern_archive.testing.pairs import simulate_range_scan
+
+    walls = np.array([[-50.0, -1.0, 50.0, -1.0], [-50.0, 1.0, 50.0, 1.0]])
+    env = Environment(walls, "gallery", np.zeros((0, 2)))
+    rng = np.random.default_rng(0)
+    kw = dict(n_beams=200, max_range_m=6.0, noise_m=0.02, outlier_fraction=0.0, dropout_fraction=0.0, rng=rng)
+    a = simulate_range_scan(env, np.array([0.0, 0.0]), 0.0, compass_yaw_rad=0.0, **kw)
+    b = simulate_range_scan(env, np.array([0.8, 0.0]), 0.0, compass_yaw_rad=0.0, **kw)
+    res = ICPMatcher().match(a, b, ICPParams(), rng=rng)
+    assert not res.converged
+    assert "constrain" in res.reason or "weakly" in res.reason

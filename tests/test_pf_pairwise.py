@@ -190,3 +190,21 @@ def test_featureless_corridor_is_not_a_silent_success():
 def test_verification_can_be_switched_off():
     a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
     assert match(a, b, verify=False).converged
+
+
+def test_verification_reasons():
+    """Edge of the search square, beams through walls, and a rival position are each reported."""
+    from cistern_plugins.pf_pairwise import crossing_fraction, verify_unique, _select_beams
+
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    p = PFParams()
+    matcher = PFPairwiseMatcher()
+    model = matcher._map(a, p)
+    beams = _select_beams(b, p.max_beams)
+    truth = (B_XY[0] - A_XY[0], B_XY[1] - A_XY[1], 0.0)
+    assert crossing_fraction(model, beams, truth, p) < 0.05
+    assert verify_unique(model, beams, truth, p) == ""
+    wrong = (truth[0] + 1.0, truth[1] - 0.6, 0.0)  # next to a wall: many beams cross it
+    assert crossing_fraction(model, beams, wrong, p) > p.max_crossing
+    assert "pass through walls" in verify_unique(model, beams, wrong, p)
+    assert "edge" in verify_unique(model, beams, (3.99, 0.0, 0.0), p)

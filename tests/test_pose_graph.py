@@ -42,3 +42,13 @@ def test_disconnected_scan_is_unplaced_with_reason():
     poses = loc.localize(_scans(4), ms, p)
     assert not poses.placed[3] and "no converged path" in poses.reasons[3]
     assert np.isnan(poses.xy_m[3]).all()
+
+
+def test_reference_is_in_the_largest_group():
+    """A dense pair of scans must not win over a longer chain."""
+    loc, p = PoseGraphLocalizer(), PoseGraphParams(window=1)
+    rng = np.random.default_rng(2)
+    chain = _matches([(0, 1), (1, 2), (2, 3)], rng)
+    dense = [MatchResult(5, 6, 1.0, 0.0, 0.0, 1.0, True, 1, 0.0) for _ in range(6)]
+    poses = loc.localize(_scans(7), chain + dense, p)
+    assert poses.placed[:4].all() and not poses.placed[5:].any() and not poses.placed[4]

@@ -148,7 +148,7 @@ class ConvergenceThresholds:
     inlier_distance_m: float = 0.15
     min_inliers: int = 25
     min_inlier_ratio: float = 0.5
-    min_constraint: float = 0.03
+    min_constraint: float = 0.1
     max_violation_ratio: float = 0.09
     free_space_margin_m: float = 0.3
     max_weak_std_m: float = 0.03
@@ -160,7 +160,7 @@ class ConvergenceParams(StageParams):
     inlier_distance_m: float = Field(0.15, gt=0)
     min_inliers: int = Field(25, ge=3)
     min_inlier_ratio: float = Field(0.5, ge=0, le=1)
-    min_constraint: float = Field(0.03, ge=0)
+    min_constraint: float = Field(0.1, ge=0)
     max_weak_std_m: float = Field(0.03, gt=0)
     max_violation_ratio: float = Field(0.09, ge=0, le=1)
     free_space_margin_m: float = Field(0.3, ge=0)

@@ -14,12 +14,12 @@ pruning threshold are dropped; the threshold is the best exact score found so fa
 from the best node) times ``ambiguity_ratio``, so every pose within that ratio of the optimum survives
 to the finest level and the runner-up peak is known exactly.
 
-Convergence is honest on three counts: the best score reaches ``min_score``; no distinct peak
-scores within ``ambiguity_ratio`` of it (Olson's ambiguity test) — a rival is a pose farther than
-``ambiguity_distance_m`` from the best, at any yaw, that is separated from the best by a valley: on the
-straight path between them the score (maximised over nearby yaws) drops below ``valley_ratio`` of the
-best. A rival joined to the best by a ridge is the same, elongated peak (a gallery seen along its
-axis), whose extent the shared constraint test judges; and the refined placement passes the shared test
+Convergence is honest on three counts: the best score reaches ``min_score``; no pose farther than
+``ambiguity_distance_m`` from the best (at any yaw) scores within ``ambiguity_ratio`` of it (Olson's
+ambiguity test). The reason names which kind of ambiguity it is: a second peak, separated from the
+best by a valley (on the straight path between them the score, maximised over nearby yaws, drops
+below ``valley_ratio`` of the best), or a ridge — one elongated peak, as a gallery seen along its axis
+gives, whose position along the ridge is unknown to at least ``ambiguity_distance_m``; and the refined placement passes the shared test
 of :mod:`cistern_plugins.alignment`. The winning pose is refined to sub-cell accuracy by a few
 point-to-line ICP iterations, as Cartographer refines its correlative estimate with a local solver.
 """
@@ -60,7 +60,6 @@ class CorrelativeParams(ConvergenceParams):
     ambiguity_ratio: float = Field(0.9, gt=0, le=1)
     ambiguity_distance_m: float = Field(0.5, gt=0)
     valley_ratio: float = Field(0.8, gt=0, le=1)
-    max_rivals: int = Field(30, ge=1)
     refine_iterations: int = Field(30, ge=0)
     free_space_penalty: float = Field(1.0, ge=0)
 
@@ -207,7 +206,8 @@ class CorrelativeMatcher:
             reason = f"best correlation score {scores[0]:.2f} < {p.min_score:.2f}"
         rival = _rival(nodes, scores, angles, p, pyr, src)
         if not reason and rival is not None:
-            reason = (f"ambiguous: a second peak {rival[0]:.2f} m / {rival[1]:.1f}° away scores "
+            kind = "a ridge: a pose" if rival[3] else "a second peak"
+            reason = (f"ambiguous, {kind} {rival[0]:.2f} m / {rival[1]:.1f}° away scores "
                       f"{rival[2]:.2f} against the best {scores[0]:.2f}")
         pose = best
         iterations = len(nodes)
@@ -225,14 +225,15 @@ class CorrelativeMatcher:
 
 def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: CorrelativeParams,
            pyr: LikelihoodPyramid, points: np.ndarray):
-    """The best distinct rival peak, as (distance m, angle deg, score), or ``None`` (see module docstring)."""
+    """The best far rival, as (distance m, angle deg, score, joined by a ridge), or ``None``."""
     d = np.hypot(nodes[:, 0] - nodes[0, 0], nodes[:, 1] - nodes[0, 1]) * p.resolution_m
     da = np.degrees(np.abs(angles[nodes[:, 2]] - angles[nodes[0, 2]]))
-    far = np.flatnonzero(d > p.ambiguity_distance_m)[: p.max_rivals]
-    for k in far:
-        if _valley(pyr, points, angles, nodes[0], nodes[k]) < p.valley_ratio * scores[0]:
-            return float(d[k]), float(da[k]), float(scores[k])
-    return None
+    far = np.flatnonzero(d > p.ambiguity_distance_m)
+    if len(far) == 0:
+        return None
+    k = far[0]
+    ridge = _valley(pyr, points, angles, nodes[0], nodes[k]) >= p.valley_ratio * scores[0]
+    return float(d[k]), float(da[k]), float(scores[k]), ridge
 
 
 def _valley(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

@@ -13,7 +13,6 @@ of the tiles. ``benchmarks/RESULTS.md`` compares time and memory with a dense ar
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from typing import ClassVar
 
@@ -50,7 +49,6 @@ class EvidenceGridMapper:
     def build(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams) -> MapResult:
         """Fuse every placed scan into the grid of its depth slice."""
         p = params if isinstance(params, GridParams) else GridParams.model_validate(params.model_dump())
-        start = time.perf_counter()
         model = SonarModel(
             l_occ=p.l_occ, l_free=p.l_free, clamp_min=p.clamp_min, clamp_max=p.clamp_max,
             free_no_echo=p.free_no_echo,
@@ -84,7 +82,6 @@ class EvidenceGridMapper:
                 )
             )
         stats = {
-            "seconds": time.perf_counter() - start,
             "scans_fused": float(len(placed)),
             "slices": float(len(grids)),
             "tiles": float(n_tiles),

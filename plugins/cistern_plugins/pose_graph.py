@@ -10,10 +10,15 @@ position and ``c_k`` the correction added to the compass yaw. A converged match 
 displacement is ``R(c_i) d_ij``, which is exactly GTSAM's ``BetweenFactorPose2`` measurement
 ``X_i^-1 X_j = (d_ij, dyaw)``. Each factor's noise is the match's covariance (or the default sigmas)
 wrapped in a robust M-estimator (``huber`` or ``cauchy``), so a wrong match that slipped through is
-down-weighted. The compass is trusted up to ``compass_sigma_deg`` (a prior on every ``c_k``), and the
-reference scan (the one with most converged matches, lowest index on ties, as in Table III) is
-anchored at the origin. Levenberg–Marquardt solves the graph; ``gtsam.Marginals`` gives each scan's
-3×3 covariance, rotated into the map frame. Scans with no converged path to the reference are
+down-weighted; the match covariance is floored at ``min_sigma_xy_m`` so that no single match is
+trusted beyond the accuracy scan matching reaches on sonar data. The compass is trusted up to
+``compass_sigma_deg`` (a prior on every ``c_k``), and the reference scan (in the largest group of scans
+joined by converged matches, the one with most matches, lowest index on ties — cf. Table III) is
+anchored at the origin. Levenberg–Marquardt solves the graph; then, for up to ``gate_rounds`` rounds,
+the match whose squared Mahalanobis residual is largest is dropped if it exceeds ``gate_chi2``
+(default: the 99.9 % quantile of chi-square with 3 degrees of freedom) and the graph is solved again —
+robust losses soften a wrong match, the gate removes it; a scan whose only path was a dropped match
+becomes unplaced. ``gtsam.Marginals`` gives each scan's 3×3 covariance, rotated into the map frame. Scans with no converged path to the reference are
 returned unplaced with the reason.
 """
 
@@ -41,9 +46,11 @@ class PoseGraphParams(StageParams):
     robust_k: float = Field(1.345, gt=0)
     sigma_xy_m: float = Field(0.05, gt=0)
     sigma_yaw_deg: float = Field(1.0, gt=0)
-    min_sigma_xy_m: float = Field(0.01, gt=0)
+    min_sigma_xy_m: float = Field(0.03, gt=0)
     compass_sigma_deg: float = Field(5.0, gt=0)
     max_iterations: int = Field(100, ge=1)
+    gate_chi2: float = Field(16.27, gt=0)
+    gate_rounds: int = Field(3, ge=0)
 
 
 class PoseGraphLocalizer:
@@ -74,10 +81,9 @@ class PoseGraphLocalizer:
         if reference < 0:
             reasons = tuple("no converged match" for _ in range(n))
             return Poses(np.full((n, 2), np.nan), yaw, np.zeros(n, bool), reasons, -1, None)
+        graph, result, good = _solve_gated(n, list(good), reference, p)
         initial = _spanning_tree(n, good, reference)
         placed = np.array([k in initial for k in range(n)])
-        graph, values = _build_graph(good, initial, reference, p)
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm(p)).optimize()
         marginals = gtsam.Marginals(graph, result)
         xy = np.full((n, 2), np.nan)
         cov = np.full((n, 3, 3), np.nan)
@@ -97,6 +103,34 @@ class PoseGraphLocalizer:
         return Poses(xy, out_yaw, placed, reasons, reference, cov)
 
 
+def _solve_gated(n: int, good: list[MatchResult], reference: int, p: PoseGraphParams):
+    """Solve, then drop the worst match while its squared Mahalanobis residual exceeds the gate."""
+    for _ in range(p.gate_rounds + 1):
+        initial = _spanning_tree(n, good, reference)
+        graph, values = _build_graph(good, initial, reference, p)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm(p)).optimize()
+        chi2 = [_chi2(m, result, p) if m.i in initial and m.j in initial else 0.0 for m in good]
+        worst = int(np.argmax(chi2)) if chi2 else -1
+        if worst < 0 or chi2[worst] <= p.gate_chi2 or len(good) <= 1:
+            break
+        good = good[:worst] + good[worst + 1:]
+    return graph, result, good
+
+
+def _chi2(m: MatchResult, result: gtsam.Values, p: PoseGraphParams) -> float:
+    """Squared Mahalanobis distance of a match from the solution (without the robust loss)."""
+    rel = result.atPose2(m.i).between(result.atPose2(m.j))
+    err = np.array([rel.x() - m.dx_m, rel.y() - m.dy_m, (rel.theta() - m.dyaw_rad + math.pi) % (2 * math.pi) - math.pi])
+    cov = _covariance(m, p)
+    return float(err @ np.linalg.solve(cov, err))
+
+
+def _covariance(m: MatchResult, p: PoseGraphParams) -> np.ndarray:
+    if m.covariance is not None and np.isfinite(m.covariance).all():
+        return 0.5 * (m.covariance + m.covariance.T) + np.diag([p.min_sigma_xy_m**2] * 2 + [math.radians(0.2) ** 2])
+    return np.diag([p.sigma_xy_m**2, p.sigma_xy_m**2, math.radians(p.sigma_yaw_deg) ** 2])
+
+
 def _params(params: StageParams) -> PoseGraphParams:
     return params if isinstance(params, PoseGraphParams) else PoseGraphParams.model_validate(params.model_dump())
 
@@ -108,14 +142,27 @@ def _lm(p: PoseGraphParams) -> gtsam.LevenbergMarquardtParams:
 
 
 def _reference(n: int, good: Sequence[MatchResult]) -> int:
-    """The scan with most converged matches (lowest index on ties); -1 when there are none."""
+    """In the largest group of scans joined by converged matches, the scan with most converged matches
+    (lowest index on ties); -1 when there are none."""
     if not good:
         return 0 if n == 1 else -1
     counts = np.zeros(n, dtype=int)
+    parent = list(range(n))
+
+    def find(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
     for m in good:
         counts[m.i] += 1
         counts[m.j] += 1
-    return int(np.argmax(counts))
+        parent[find(m.i)] = find(m.j)
+    roots = np.array([find(k) for k in range(n)])
+    sizes = np.bincount(roots, minlength=n)
+    largest = roots == roots[np.argmax(np.where(counts > 0, sizes[roots], 0))]
+    return int(np.argmax(np.where(largest, counts, -1)))
 
 
 def _spanning_tree(n: int, good: Sequence[MatchResult], reference: int) -> dict[int, gtsam.Pose2]:
@@ -137,11 +184,7 @@ def _spanning_tree(n: int, good: Sequence[MatchResult], reference: int) -> dict[
 
 
 def _noise(m: MatchResult, p: PoseGraphParams) -> gtsam.noiseModel.Base:
-    if m.covariance is not None and np.isfinite(m.covariance).all():
-        cov = 0.5 * (m.covariance + m.covariance.T) + np.diag([p.min_sigma_xy_m**2] * 2 + [1e-6])
-        base = gtsam.noiseModel.Gaussian.Covariance(cov)
-    else:
-        base = gtsam.noiseModel.Diagonal.Sigmas(np.array([p.sigma_xy_m, p.sigma_xy_m, math.radians(p.sigma_yaw_deg)]))
+    base = gtsam.noiseModel.Gaussian.Covariance(_covariance(m, p))
     if p.robust == "none":
         return base
     est = (gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k) if p.robust == "huber"
