@@ -11,7 +11,8 @@ two different sites. Every matcher sees exactly the same pairs.
 
 Per bucket: success rate (converged, translation error ≤ 0.10 m, yaw error ≤ 2°), median and 95th
 percentile translation error and median rotation error over converged pairs, median seconds, and the
-false success rate (converged with no overlap, or with an error above 0.5 m).
+false success rate (converged with no overlap, or with an error above 0.5 m). Statistics without data
+(e.g. errors of a matcher that converged on no pair) are ``null`` in the JSON.
 
 External peers (the ``peers`` extra) are run when they import: Open3D's point-to-point ICP (from the
 zero pose; converged when fitness ≥ 0.5 and inlier RMSE ≤ 0.1 m) and OpenKarto's correlative scan
@@ -22,7 +23,9 @@ reports an honest flag of its own.
 ``--gallery SITE`` instead compares the localizers on a simulated catalog site with truth poses
 (default ``water-gallery``, the 30 m gallery): for each matcher given with ``--gallery-matchers``, the
 ``wls`` and ``pose-graph`` localizers each run on the pairs they ask for, and the position error of the
-placed scans against the truth (in the reference scan's compass frame) is reported.
+placed scans against the truth (in the reference scan's compass frame) is reported, with the mean
+along-track error of the converged neighbour matches (a matcher's scale bias along a gallery, which no
+localizer can remove).
 
 ``--synthetic-gallery N`` does the same on N random ray-cast galleries (the ``rays`` sonar model, 1.5 m
 station spacing, compass error σ 2°), where the truth of every station is exact.
@@ -247,7 +250,13 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
                     if poses.placed[k]:
                         expected = rotate(true_xy[k] - true_xy[ref], compass_err[ref])
                         errs.append(float(np.hypot(*(poses.xy_m[k] - expected))))
+            along = []
+            for m in matches:
+                if m.converged and abs(m.i - m.j) == 1:
+                    expected = rotate(true_xy[m.j] - true_xy[m.i], compass_err[m.i])
+                    along.append(float((np.array([m.dx_m, m.dy_m]) - expected) @ expected / np.linalg.norm(expected)))
             out["results"][f"{mname}+{lname}"] = {
+                "neighbour_along_track_bias_m": float(np.mean(along)) if along else float("nan"),
                 "placed": int(poses.placed.sum()),
                 "pairs": len(matches),
                 "pairs_converged": int(sum(m.converged for m in matches)),
@@ -268,6 +277,7 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
     reg = default_registry()
     matcher = reg.load("matcher", matcher_name).instance
     errors: dict[str, list[float]] = {"wls": [], "pose-graph": []}
+    common: dict[str, list[float]] = {"wls": [], "pose-graph": []}
     per_site = []
     for g in range(n):
         env = random_gallery(rng, length_m=30.0)
@@ -279,6 +289,7 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
                  for st, yt, cy in zip(stations, yaw_true, compass)]
         cache: dict[tuple[int, int], MatchResult] = {}
         site = {"scans": len(scans)}
+        by_scan: dict[str, dict[int, float]] = {}
         for lname in errors:
             loc = reg.load("localizer", lname).instance
             lp = loc.Params()
@@ -291,17 +302,25 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
             poses = loc.localize(scans, matches, lp)
             ref = poses.reference
             errs = []
+            by_scan[lname] = {}
             if ref >= 0:
                 for k in np.flatnonzero(poses.placed):
                     expected = rotate(stations[k] - stations[ref], compass[ref] - yaw_true[ref])
                     errs.append(float(np.hypot(*(poses.xy_m[k] - expected))))
+                    by_scan[lname][int(k)] = errs[-1]
             errors[lname] += errs
             site[lname] = {"placed": int(poses.placed.sum()),
                            "median_position_error_m": float(np.median(errs)) if errs else float("nan")}
+        both = sorted(set(by_scan["wls"]) & set(by_scan["pose-graph"]))
+        for lname in common:
+            common[lname] += [by_scan[lname][k] for k in both]
         per_site.append(site)
         print(f"gallery {g}: {site}", file=sys.stderr)
-    return {"matcher": matcher_name, "galleries": per_site,
-            "median_position_error_m": {k: float(np.median(v)) if v else float("nan") for k, v in errors.items()}}
+    med = {k: float(np.median(v)) if v else float("nan") for k, v in errors.items()}
+    med_common = {k: float(np.median(v)) if v else float("nan") for k, v in common.items()}
+    return {"matcher": matcher_name, "galleries": per_site, "median_position_error_m": med,
+            "placed": {k: len(v) for k, v in errors.items()}, "scans": sum(g["scans"] for g in per_site),
+            "median_position_error_common_m": med_common, "common_scans": len(common["wls"])}
 
 
 def table(result: dict) -> str:
@@ -315,6 +334,17 @@ def table(result: dict) -> str:
                         f"{v['p95_translation_error_m']:.3f} | {v['median_rotation_error_deg']:.2f} | "
                         f"{v['median_seconds'] * 1000:.0f} ms | {100 * v['false_success_rate']:.0f} % |")
     return "\n".join(rows)
+
+
+def strict_json(value):
+    """The same structure with NaN and infinities as ``null`` (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -339,25 +369,26 @@ def main(argv: list[str] | None = None) -> int:
     if args.synthetic_gallery:
         g = synthetic_galleries(args.synthetic_gallery, args.seed, args.gallery_matcher)
         for name, v in g["median_position_error_m"].items():
-            print(f"{g['matcher']}+{name}: median position error {v:.3f} m over {len(g['galleries'])} galleries")
+            print(f"{g['matcher']}+{name}: placed {g['placed'][name]}/{g['scans']}, median position error {v:.3f} m; "
+                  f"on the {g['common_scans']} scans both placed {g['median_position_error_common_m'][name]:.3f} m")
         if args.json:
-            print(json.dumps(g, allow_nan=True))
+            print(json.dumps(strict_json(g), allow_nan=False))
         return 0
     if args.gallery:
         g = gallery(args.gallery, args.gallery_matchers.split(","), args.catalog, args.matcher_params)
         for name, v in g["results"].items():
             print(f"{name:28s} placed {v['placed']}/{g['scans']}  converged pairs {v['pairs_converged']}/{v['pairs']}  "
                   f"median {v['median_position_error_m']:.3f} m  max {v['max_position_error_m']:.3f} m  "
-                  f"{v['seconds']:.1f} s")
+                  f"{v['seconds']:.1f} s  neighbour along-track bias {v['neighbour_along_track_bias_m']:+.3f} m")
         if args.json:
-            print(json.dumps(g, allow_nan=True))
+            print(json.dumps(strict_json(g), allow_nan=False))
         return 0
     result = run(3 if args.quick else args.pairs, args.seed, 6 if args.quick else args.no_overlap_pairs, args.sonar)
     print(table(result))
     for name, why in result["unavailable"].items():
         print(f"unavailable: {name}: {why}")
     if args.json:
-        print(json.dumps(result, allow_nan=True))
+        print(json.dumps(strict_json(result), allow_nan=False))
     return 0
 
 

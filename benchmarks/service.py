@@ -13,6 +13,9 @@ Usage::
     python benchmarks/service.py                 # 60 sites, full reports
     python benchmarks/service.py --sites 10 --report light --json
 
+The benchmark runs on a frozen copy of the sources (``--live-sources`` to use the working tree), so
+that edits made to the tree while it runs do not change the build keys between its measurements.
+
 ``--report light`` renders reports without the 3D model and the per-pair figures (for quick checks);
 the targets are stated for the full report.
 """
@@ -34,10 +37,8 @@ TARGETS = {"no_change_s": 2.0, "speedup": 1.7, "peak_worker_rss_mb": 1024.0}
 
 
 def _timed_rebuild(catalog: Path, out: Path, archive: Path, *, workers: int, report: dict | None) -> dict:
-    from cistern_archive.service.buildkey import code_version
     from cistern_archive.service.rebuild import rebuild
 
-    code_version.cache_clear()  # the sources as they are now (they may be edited while this runs)
     start = time.perf_counter()
     summary = rebuild(catalog, out, workers=workers, archive=archive, report_config=report)
     seconds = time.perf_counter() - start
@@ -68,7 +69,9 @@ def _warm_up(catalog: Path, archive: Path) -> None:
 
 def _fresh_code_version() -> str:
     code = "from cistern_archive.service.buildkey import code_version; print(code_version())"
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    # Run outside the repository: the working directory would shadow a frozen copy of the sources.
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          cwd=tempfile.gettempdir()).stdout.strip()
 
 
 def run(n_sites: int, report_mode: str, workdir: Path) -> dict:
@@ -86,14 +89,11 @@ def run(n_sites: int, report_mode: str, workdir: Path) -> dict:
     in_process = _timed_rebuild(catalog, workdir / "out-2", archive, workers=2, report=report)
 
     cli: dict = {"seconds": None, "note": ""}
-    if report is None:
-        catch_up = _timed_rebuild(catalog, workdir / "out-2", archive, workers=2, report=report)
-        cli["catch_up_rebuilt"] = catch_up["counts"]["ok"] + catch_up["counts"]["failed"]
-    if report is None and _fresh_code_version() == catch_up["code_version"]:
+    if report is None and _fresh_code_version() == in_process["code_version"]:
         command = [str(Path(sys.executable).with_name("cistern-archive")), "rebuild", "--catalog", str(catalog),
                    "--out", str(workdir / "out-2"), "--archive", str(archive), "--workers", "2"]
         start = time.perf_counter()
-        proc = subprocess.run(command, capture_output=True, text=True)
+        proc = subprocess.run(command, capture_output=True, text=True, cwd=workdir)
         cli["seconds"] = round(time.perf_counter() - start, 3)
         summary = json.loads((workdir / "out-2" / "summary.json").read_text())
         cli["skipped"] = sum(s["status"] == "skipped" for s in summary["sites"])
@@ -128,8 +128,41 @@ def run(n_sites: int, report_mode: str, workdir: Path) -> dict:
     }
 
 
+FROZEN_ENV = "CISTERN_BENCH_FROZEN_SOURCES"
+
+
+def freeze_sources(target: Path) -> Path:
+    """Copy the package, the built-in plugins and the templates to ``target`` (excluding caches).
+
+    Build keys cover the package sources; on a tree that is being edited, a frozen copy keeps the code
+    version fixed for the whole benchmark (the main process, the workers and the command).
+    """
+    repo = Path(__file__).resolve().parents[1]
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    shutil.copytree(repo / "cistern_archive", target / "cistern_archive", ignore=ignore)
+    shutil.copytree(repo / "plugins" / "cistern_plugins", target / "cistern_plugins", ignore=ignore)
+    if (repo / "templates").is_dir():
+        shutil.copytree(repo / "templates", target / "templates", ignore=ignore)
+    return target
+
+
+def _rerun_frozen(argv: list[str]) -> int:
+    snapshot = freeze_sources(Path(tempfile.mkdtemp(prefix="cistern-service-src-")))
+    env = {**os.environ, FROZEN_ENV: str(snapshot),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(snapshot), os.environ.get("PYTHONPATH")]))}
+    try:
+        return subprocess.run([sys.executable, __file__, *argv], env=env).returncode
+    finally:
+        shutil.rmtree(snapshot, ignore_errors=True)
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if "--live-sources" not in argv and not os.environ.get(FROZEN_ENV):
+        return _rerun_frozen(argv)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--live-sources", action="store_true",
+                        help="use the working tree as it is (default: a frozen copy of the sources)")
     parser.add_argument("--sites", type=int, default=60, help="number of generated sites (default 60)")
     parser.add_argument("--report", choices=("full", "light"), default="full", help="report settings")
     parser.add_argument("--workdir", type=Path, default=None, help="keep the catalog and outputs here")
@@ -142,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if args.workdir is None:
             shutil.rmtree(workdir, ignore_errors=True)
+    result["frozen_sources"] = bool(os.environ.get(FROZEN_ENV))
     if args.json:
         print(json.dumps(result, sort_keys=True))
     else:

@@ -14,6 +14,12 @@ reports:
   scans do not overlap at all;
 * the whole-site time.
 
+Pairs of scans at different depth levels (depths more than ``LEVEL_TOLERANCE_M`` apart, the mapper's
+default slice tolerance) see different wall outlines in a site whose walls change with depth; their
+overlap is undefined (``nan``), so they count neither as pairs with ≥ 50 % overlap nor as pairs without
+overlap. They are reported apart (``cross_level_pairs``, ``cross_level_converged``); the localizer joins
+depth levels through the record's vertical ties (``ScanRef.below``).
+
 Usage::
 
     .venv/bin/python benchmarks/sites.py [--catalog catalog] [--site ID ...] [--json]
@@ -32,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+LEVEL_TOLERANCE_M = 0.25
 
 from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
@@ -61,7 +68,7 @@ def score_site(path: Path, catalog: Path) -> dict | None:
     max_range = record.sonar.range_m or max(s.max_range_m for s in scans)
 
     def overlap(i: int, j: int) -> float:
-        if spec is None:
+        if spec is None or abs(scans[i].depth_m - scans[j].depth_m) > LEVEL_TOLERANCE_M:
             return float("nan")
         rings = interpolate_slice(spec.site.slices(), 0.5 * (scans[i].depth_m + scans[j].depth_m))
         return overlap_fraction(true_xy[i], true_xy[j], rings, max_range)
@@ -85,6 +92,7 @@ def score_site(path: Path, catalog: Path) -> dict | None:
     eligible = [p for p in pairs if p["neighbour"] and p["overlap"] >= 0.5]
     good = [p for p in eligible if p["converged"] and p["error_m"] <= 0.10]
     false_conv = [p for p in pairs if p["converged"] and p["error_m"] > 0.10]
+    cross_level = [m for m in build.matches if abs(scans[m.i].depth_m - scans[m.j].depth_m) > LEVEL_TOLERANCE_M]
     return {
         "site": record.id,
         "status": build.result.status,
@@ -98,6 +106,8 @@ def score_site(path: Path, catalog: Path) -> dict | None:
         "pairs_converged": sum(p["converged"] for p in pairs),
         "false_convergences": len(false_conv),
         "false_convergences_no_overlap": sum(1 for p in false_conv if p["overlap"] == 0.0),
+        "cross_level_pairs": len(cross_level),
+        "cross_level_converged": sum(1 for m in cross_level if m.converged),
         "median_pair_seconds": statistics.median(p["seconds"] for p in pairs) if pairs else float("nan"),
         "site_seconds": seconds,
         "unplaced_reasons": [r for r in (poses.reasons if poses is not None else ()) if r][:3],

@@ -101,8 +101,9 @@ def test_mdina_end_scans_barely_overlap():
     pos = {s["station"]: np.array([s["x_m"], s["y_m"]]) for s in doc["stations"]}
     names = [s["station"] for s in doc["stations"]]
     overlaps = {(a, b): overlap_fraction(pos[a], pos[b], rings, 10.0) for a, b in zip(names, names[1:])}
-    assert overlaps[("a3", "b1")] < 0.3
-    assert all(v >= 0.7 for pair, v in overlaps.items() if pair != ("a3", "b1"))
+    assert overlap_fraction(pos["a3"], pos["b1"], rings, 10.0) < 0.3
+    assert ("a3", "o1") in overlaps and ("o1", "b1") in overlaps  # the station in the opening joins them
+    assert all(v >= 0.7 for v in overlaps.values())
 
 
 def test_bell_is_scanned_at_three_depths_with_changing_walls():
@@ -116,6 +117,18 @@ def test_bell_is_scanned_at_three_depths_with_changing_walls():
     assert len(levels) >= 3 and spans[0] < spans[-1] / 3
 
 
+def test_bell_levels_are_tied_by_vertical_descents():
+    rec = record("bell-cistern")
+    index = rec.station_index()
+    xy = {t.station: np.array([t.x_m, t.y_m]) for t in rec.truth}
+    ties = [(s.station, s.below) for s in rec.scans if s.below is not None]
+    assert len(ties) == 2
+    for lower, upper in ties:
+        assert index[upper] == index[lower] - 1  # descended from the previous station
+        assert rec.scans[index[lower]].depth_m > rec.scans[index[upper]].depth_m + 0.5
+        assert 0.0 < np.hypot(*(xy[lower] - xy[upper])) < 0.1  # the descent drifts a few centimetres
+
+
 def test_gallery_is_long_with_many_stations():
     rec = record("water-gallery")
     assert len(rec.scans) >= 12
@@ -123,3 +136,28 @@ def test_gallery_is_long_with_many_stations():
     assert np.sum(np.hypot(*np.diff(xy, axis=0).T)) >= 25.0
     ring = np.asarray(truth("water-gallery")["levels"][0]["rings"][0])
     assert np.ptp(ring[:, 0]) >= 30.0
+
+
+def test_gallery_is_rough_with_features_and_overlapping_stations():
+    spec = load_spec(CATALOG / "specs" / "water-gallery.yaml")
+    level = spec.site.levels[0]
+    assert level.wall_roughness is not None and level.wall_roughness >= 0.2
+    assert len(level.walls.recesses) >= 5 and len(set(level.walls.widths)) >= 3
+    assert max(r.depth_m for r in level.walls.recesses) >= 2.0  # a side branch
+    rings = [np.asarray(r) for r in truth("water-gallery")["levels"][0]["rings"]]
+    xy = [np.array([t.x_m, t.y_m]) for t in record("water-gallery").truth]
+    assert all(overlap_fraction(a, b, rings, spec.sonar.range_m) >= 0.5 for a, b in zip(xy, xy[1:]))
+
+
+def test_scan_below_must_name_another_station():
+    from pydantic import ValidationError
+
+    from cistern_archive.catalog.models import SiteRecord
+
+    data = record("bell-cistern").model_dump(mode="json")
+    data["scans"][3]["below"] = "nowhere"
+    with pytest.raises(ValidationError, match="below 'nowhere' is not another station"):
+        SiteRecord.model_validate(data)
+    data["scans"][3]["below"] = data["scans"][3]["station"]
+    with pytest.raises(ValidationError, match="is not another station"):
+        SiteRecord.model_validate(data)

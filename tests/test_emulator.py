@@ -163,6 +163,17 @@ def test_echo_puts_the_wall_where_the_geometry_says():
     assert np.median(np.abs(peaks - truth)) < 2 * bin_size
 
 
+def test_gain_and_ad_window_of_the_command_change_the_echoes():
+    echo = ideal_echo()
+    levels = {}
+    for gain in (0.2, 0.4, 0.8):
+        cmd = HeadSettings(range_m=8.0, n_bins=200, step=64, gain=gain).head_command()
+        levels[gain] = float(echo.revolution(cmd, np.random.default_rng(1)).mean())
+    assert levels[0.2] < levels[0.4] < levels[0.8]
+    narrow = HeadSettings(range_m=8.0, n_bins=200, step=64, ad_span=40).head_command()
+    assert echo.revolution(narrow, np.random.default_rng(1)).mean() > levels[0.4]
+
+
 def test_fault_injector_is_seeded_and_counts():
     data = bytes(range(256)) * 20
     plan = FaultPlan(drop=0.01, flip=0.01, garbage=0.5, seed=4)

@@ -68,7 +68,8 @@ def test_settings_build_the_worked_head_command_byte_for_byte():
 def test_head_command_decodes_back():
     cmd = decode_message(decode_packet(HEAD_COMMAND_12_3))
     assert isinstance(cmd, HeadCommand)
-    assert (cmd.range_scale, cmd.left_limit, cmd.right_limit, cmd.ad_interval, cmd.n_bins) == (100, 2400, 4000, 104, 200)
+    assert (cmd.range_scale, cmd.left_limit, cmd.right_limit) == (100, 2400, 4000)
+    assert (cmd.ad_interval, cmd.n_bins) == (104, 200)
     assert (cmd.ad_span, cmd.ad_low, cmd.igain, cmd.mo_time, cmd.step_size) == (81, 8, (84, 84), 25, 16)
     assert cmd.encode() == HEAD_COMMAND_12_3
 

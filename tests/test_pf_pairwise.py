@@ -208,3 +208,27 @@ def test_verification_reasons():
     assert crossing_fraction(model, beams, wrong, p) > p.max_crossing
     assert "pass through walls" in verify_unique(model, beams, wrong, p)
     assert "edge" in verify_unique(model, beams, (3.99, 0.0, 0.0), p)
+
+
+def test_grid_modes_include_the_true_offset():
+    from cistern_plugins.pf_pairwise import _select_beams, grid_modes
+
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    p = PFParams()
+    matcher = PFPairwiseMatcher()
+    modes = grid_modes(matcher._map(a, p), _select_beams(b, p.max_beams), 0.0, p, 3)
+    assert 1 <= len(modes) <= 3
+    assert np.hypot(*np.subtract(modes[0], np.subtract(B_XY, A_XY))) <= 1.5 * p.verify_step_m
+    gaps = [np.hypot(*np.subtract(m1, m2)) for k, m1 in enumerate(modes) for m2 in modes[k + 1:]]
+    assert all(g > p.ambiguity_radius_m for g in gaps)
+
+
+def test_restarts_keep_a_good_match_and_report_failures():
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    plain, restarted = match(a, b), match(a, b, restarts=2)
+    assert restarted.converged and (restarted.dx_m, restarted.dy_m) == (plain.dx_m, plain.dy_m)
+    far_room = [np.array([[20, 20], [24, 20], [24, 23], [20, 23]], float)]
+    c = scan_at((22.0, 21.5), seed=3, polygons=far_room)
+    result = match(a, c, restarts=2)
+    assert_not_silent(result)
+    assert "restarts" in result.reason

@@ -45,9 +45,16 @@ def _rebuild(catalog: Path, out: Path, **kwargs):
     return rebuild(catalog, out, workers=kwargs.pop("workers", 2), report_config=FAST_REPORT, **kwargs)
 
 
+def _files(root: Path) -> dict[str, tuple[bytes, int, int]]:
+    return {str(p.relative_to(root)): (p.read_bytes(), p.stat().st_mode, p.stat().st_mtime_ns)
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
 def test_rebuild_publishes_every_site_then_skips_the_unchanged(catalog, tmp_path):
     out = tmp_path / "site"
+    raw_before = _files(catalog)
     first = _rebuild(catalog, out)
+    assert _files(catalog) == raw_before, "raw inputs are never modified"
     assert [(s.id, s.status) for s in first.sites] == [(site, "ok") for site in SITES], first.sites
     assert first.exit_code == 0
     for site in SITES:

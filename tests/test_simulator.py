@@ -219,3 +219,69 @@ def test_visibility_and_overlap_in_a_box():
     a, b = np.array([1.0, 1.0]), np.array([5.0, 3.0])
     assert overlap_fraction(a, b, BOX, 10.0) == pytest.approx(1.0, abs=0.01)
     assert overlap_fraction(a, b, BOX, 1.0) == 0.0
+
+
+def test_gallery_ring_steps_in_width_and_cuts_recesses():
+    spec = RingSpec(
+        corridor=[(0.0, 0.0), (5.0, 0.0), (9.0, 0.0), (9.0, 6.0)], widths=[1.4, 1.8, 1.4],
+        recesses=[{"reach": 0, "side": "left", "at_m": 1.0, "length_m": 0.8, "depth_m": 0.5},
+                  {"reach": 1, "side": "right", "at_m": 1.0, "length_m": 1.0, "depth_m": 3.0}],
+    )
+    ring = [spec.vertices()]
+    for point in ([1.4, 1.0], [6.5, -3.5], [7.0, 0.85], [9.0, 3.0]):  # niche, branch, wide reach, after the bend
+        assert contains(ring, np.array([point]))[0], point
+    for point in ([3.0, 1.0], [3.0, 0.85], [8.3, -3.5]):  # wall beside the niche, narrow reach, beside the branch
+        assert not contains(ring, np.array([point]))[0], point
+    plain = RingSpec(corridor=[(0.0, 0.0), (10.0, 0.0), (10.0, 8.0)], width_m=1.4, widths=[1.4, 1.4]).vertices()
+    mitred = RingSpec(corridor=[(0.0, 0.0), (10.0, 0.0), (10.0, 8.0)], width_m=1.4).vertices()
+    assert np.allclose(plain, mitred)
+
+
+def test_gallery_ring_refuses_misfits():
+    with pytest.raises(ValueError, match="one positive width per reach"):
+        RingSpec(corridor=[(0.0, 0.0), (5.0, 0.0)], widths=[1.0, 2.0])
+    with pytest.raises(ValueError, match="does not fit"):
+        RingSpec(corridor=[(0.0, 0.0), (5.0, 0.0)], recesses=[
+            {"reach": 0, "side": "left", "at_m": 4.5, "length_m": 1.0, "depth_m": 0.3}])
+    with pytest.raises(ValueError, match="belong to a corridor"):
+        RingSpec(rectangle=(0.0, 0.0, 1.0, 1.0), widths=[1.0])
+
+
+def _gallery_spec(roughness: float | None) -> SimulationSpec:
+    return SimulationSpec(
+        id="gallery", name="gallery", seed=5, sonar=SonarSpec(range_m=6.0, bins=150, step_deg=1.8),
+        site=SiteSpec(levels=[LevelSpec(depth_m=0.0, wall_roughness=roughness,
+                                         walls=RingSpec(corridor=[(0.0, 0.0), (12.0, 0.0)], width_m=1.4))]),
+        stations=[StationSpec(name="g1", x_m=6.0, y_m=0.0, depth_m=1.0)],
+    )
+
+
+def test_rough_walls_echo_at_grazing_incidence():
+    """Beams meeting the side walls of a 1.4 m gallery 2-5 m away: on smooth walls most echoes come from
+    near the head (the grazing wall echo is too weak); on rough walls most come from the far wall."""
+    far, on_wall = {}, {}
+    for roughness in (None, 0.3):
+        sim = simulate_site(_gallery_spec(roughness)).scans[0]  # default (noisy) effects
+        ranges = segment(sim.scan, Segmentation(threshold=50, min_range_m=0.4)).ranges_m
+        grazing = np.isfinite(sim.truth_ranges_m) & (sim.truth_ranges_m > 2.0) & (sim.truth_ranges_m < 5.0)
+        far[roughness] = float(np.mean(ranges[grazing] > 1.5))
+        on_wall[roughness] = float(np.mean(np.abs(ranges[grazing] - sim.truth_ranges_m[grazing]) < 0.15))
+    assert far[None] < 0.4 and far[0.3] > 0.7
+    assert on_wall[0.3] > on_wall[None] + 0.3
+
+
+def test_level_roughness_interpolates_in_depth():
+    site = SiteSpec(levels=[LevelSpec(depth_m=0.0, wall_roughness=0.1, walls=RingSpec(rectangle=(0, 0, 1, 1))),
+                            LevelSpec(depth_m=2.0, wall_roughness=0.5, walls=RingSpec(rectangle=(0, 0, 1, 1)))])
+    assert site.wall_roughness(1.0, 0.03) == pytest.approx(0.3)
+    assert site.wall_roughness(5.0, 0.03) == pytest.approx(0.5)
+    assert _gallery_spec(None).site.wall_roughness(1.0, 0.03) == 0.03
+
+
+def test_station_below_must_name_an_earlier_station():
+    site = SiteSpec(levels=[LevelSpec(depth_m=0.0, walls=RingSpec(rectangle=(0, 0, 4, 4)))])
+    SimulationSpec(id="s", name="s", site=site, stations=[
+        StationSpec(name="a", x_m=1, y_m=1), StationSpec(name="b", x_m=1.02, y_m=1, depth_m=2.0, below="a")])
+    with pytest.raises(ValueError, match="not an earlier station"):
+        SimulationSpec(id="s", name="s", site=site, stations=[
+            StationSpec(name="a", x_m=1, y_m=1, below="b"), StationSpec(name="b", x_m=1, y_m=1)])

@@ -144,3 +144,32 @@ def test_heading_corrections_are_composed():
     flat = WLSLocalizer().localize(scans(3), ms, WLSParams(third_scan=False, use_yaw=False))
     assert_allclose(flat.yaw_rad, [0.0, 0.1, 0.2])
     assert np.abs(flat.xy_m[2] - TRUTH[2]).max() > 0.05
+
+
+def test_vertical_tie_joins_levels_and_overrides_their_match():
+    """Scans 0-1 at one depth, 2-3 at another; scan 2 was taken below scan 1 (ScanRef.below)."""
+    s = [RangeScan(bearings_rad=x.bearings_rad, ranges_m=x.ranges_m, yaw_rad=x.yaw_rad,
+                   depth_m=1.0 if k < 2 else 3.0, max_range_m=10.0, bin_size_m=0.05, beam_width_rad=0.05,
+                   station=x.station) for k, x in enumerate(scans(4))]
+    truth = TRUTH.copy()
+    truth[2] = truth[1]
+    wrong = m(1, 2, [2.0, 2.0])  # a cross-level match converged to nonsense
+    ms = [m(0, 1), m(1, 0), wrong, m(2, 3, truth[3] - truth[2]), m(3, 2, truth[2] - truth[3])]
+    untied = WLSLocalizer().localize(s, ms[:2] + ms[3:], WLSParams(third_scan=False))
+    assert untied.placed.tolist() == [True, True, False, False]
+    tied = WLSLocalizer().localize(s, ms, WLSParams(third_scan=False, below={"s2": "s1"}))
+    assert tied.placed.all()
+    assert_allclose(tied.xy_m, truth, atol=1e-12)
+    with pytest.raises(ValueError, match="no scan of station 'x9'"):
+        WLSLocalizer().localize(s, ms, WLSParams(below={"s2": "x9"}))
+
+
+def test_runner_passes_the_records_vertical_ties(bundled_catalog):
+    from cistern_archive.catalog.loader import load_record
+    from cistern_archive.pipeline.registry import Registry
+    from cistern_archive.pipeline.runner import resolve_stages
+
+    record = load_record(bundled_catalog / "sites" / "bell-cistern.yaml", bundled_catalog).record
+    params = resolve_stages(record, Registry())["localizer"].params
+    assert params.below == {s.station: s.below for s in record.scans if s.below}
+    assert len(params.below) == 2

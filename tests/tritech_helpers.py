@@ -1,4 +1,4 @@
-"""A small simulated catalog for the emulator, driver and acquisition tests."""
+"""Small simulated catalogs for the emulator, driver and acquisition tests."""
 
 from __future__ import annotations
 
@@ -33,18 +33,24 @@ stations:
 """
 
 
-def make_tiny_catalog(root: Path, *, stations: tuple[str, ...] = ("a", "c")) -> Path:
-    """Write the pool spec, simulate it and write a catalog under ``root`` whose record holds ``stations``.
+def make_catalog(root: Path, spec_text: str, stations: tuple[str, ...]) -> Path:
+    """Write a spec, simulate it and write a catalog under ``root`` whose record holds only ``stations``.
 
-    Returns the catalog root. Station ``b`` is left out of the record by default, so a test can acquire it.
+    The other stations of the spec are left for a test to acquire through the emulator.
     """
-    spec_path = root / "specs" / "pool.yaml"
+    root.mkdir(parents=True, exist_ok=True)
+    spec_path = root / "specs" / "site.yaml"
     spec_path.parent.mkdir(parents=True, exist_ok=True)
-    spec_path.write_text(SPEC, encoding="utf-8")
+    spec_path.write_text(spec_text, encoding="utf-8")
     site = simulate_site(load_spec(spec_path))
     keep = [s for s in site.scans if s.pose.station in stations]
     write_site(type(site)(spec=site.spec, scans=keep), root, spec_path=spec_path, record_dir="sites")
     return root
+
+
+def make_tiny_catalog(root: Path, *, stations: tuple[str, ...] = ("a", "c")) -> Path:
+    """The 6 m x 4 m pool with stations ``a`` and ``c`` in its record (``b`` left to acquire)."""
+    return make_catalog(root, SPEC, stations)
 
 
 @pytest.fixture

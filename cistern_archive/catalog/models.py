@@ -82,6 +82,11 @@ class ScanRef(Strict):
     depth_m: float | None = None
     time: dt.datetime | None = None
     index: int = Field(default=0, ge=0, description="which scan of a multi-scan file")
+    below: str | None = Field(
+        default=None,
+        description="station this scan was taken directly below: the vehicle descended vertically from "
+        "it, so both share one horizontal position (a field note; a localizer may use it as a tie)",
+    )
 
     @field_validator("file")
     @classmethod
@@ -167,6 +172,9 @@ class SiteRecord(Strict):
             if scan.station in seen:
                 raise ValueError(f"station {scan.station!r} appears twice")
             seen.add(scan.station)
+        for scan in self.scans:
+            if scan.below is not None and (scan.below not in seen or scan.below == scan.station):
+                raise ValueError(f"scan {scan.station!r}: below {scan.below!r} is not another station")
         for ref in self.references:
             if ref.measure.frame is not None and ref.measure.frame not in seen:
                 raise ValueError(f"reference {ref.name!r}: frame {ref.measure.frame!r} is not a station")

@@ -8,6 +8,7 @@ decoded scan (``data/<site>/<station>.npz``), the site record (atomic, validated
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -23,12 +24,16 @@ def register(app: typer.Typer) -> None:
         station: str = typer.Option(..., "--station", help="Label of the new station."),
         depth: float = typer.Option(..., "--depth", help="Depth of the sonar head, metres (positive down)."),
         heading: float = typer.Option(..., "--heading", help="Compass heading, degrees clockwise from north."),
-        range_m: float = typer.Option(None, "--range", help="Range, metres (default: the record's sonar.range_m)."),
-        bins: int = typer.Option(None, "--bins", help="Bins per beam (default: the record's sonar.bins)."),
-        step: int = typer.Option(None, "--step", help="Motor step, 1/16 gradian: 4, 8, 16, 32, 64 or 128."),
-        gain: float = typer.Option(None, "--gain", help="Gain, fraction 0..1."),
+        range_m: Optional[float] = typer.Option(None, "--range",
+                                                help="Range, metres (default: the record's sonar.range_m)."),
+        bins: Optional[int] = typer.Option(None, "--bins", help="Bins per beam (default: the record's sonar.bins)."),
+        step: Optional[int] = typer.Option(None, "--step", help="Motor step, 1/16 gradian: 4, 8, ..., 128."),
+        gain: Optional[float] = typer.Option(None, "--gain", help="Gain, fraction 0..1."),
+        accept_gaps: int = typer.Option(0, "--accept-gaps", min=0, help="Stop after one revolution if at most "
+                                        "this many beams are missing (default: fill every gap)."),
         four_bit: bool = typer.Option(False, "--4bit", help="Ask for 4-bit bins (half the bytes)."),
-        archive_dir: Path = typer.Option(None, "--archive", help="Archive folder (default: beside the catalog)."),
+        archive_dir: Optional[Path] = typer.Option(None, "--archive",
+                                                   help="Archive folder (default: beside the catalog)."),
         no_archive: bool = typer.Option(False, "--no-archive", help="Do not add the files to the archive."),
         reply_timeout: float = typer.Option(1.0, "--reply-timeout", min=0.05, help="Seconds before a re-request."),
         alive_timeout: float = typer.Option(30.0, "--alive-timeout", min=0.1, help="Seconds to wait for the head."),
@@ -41,6 +46,7 @@ def register(app: typer.Typer) -> None:
         from cistern_archive.errors import CatalogError
         from cistern_archive.tritech.acquire import acquire_scan, find_site, settings_for_record
         from cistern_archive.tritech.driver import DriverConfig
+        from cistern_archive.tritech.messages import HeadSettings
 
         console = Console(stderr=True)
         try:
@@ -50,7 +56,7 @@ def register(app: typer.Typer) -> None:
                                          ("gain", gain)) if v is not None}
             if four_bit:
                 changes["bits"] = 4
-            settings = type(base).model_validate({**base.model_dump(), **changes})
+            settings = HeadSettings.model_validate({**base.model_dump(), **changes})
         except CatalogError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(EXIT_USAGE) from None
@@ -75,11 +81,13 @@ def register(app: typer.Typer) -> None:
             try:
                 result = acquire_scan(catalog, port, site, station, depth_m=depth, heading_deg=heading,
                                       settings=settings, config=config, archive_dir=archive_dir,
-                                      use_archive=not no_archive, on_line=on_line, log=log)
+                                      use_archive=not no_archive, accept_missing=accept_gaps, on_line=on_line,
+                                      log=log)
             except CatalogError as exc:
                 typer.echo(f"error: {exc}", err=True)
                 raise typer.Exit(EXIT_USAGE) from None
-        console.print(f"raw stream: {result.raw_path}")
+        if result.raw_path is not None:
+            console.print(f"raw stream: {result.raw_path}")
         if result.scan_path is not None:
             console.print(f"scan: {result.scan_path} (station {result.station}, "
                           f"{result.capture.scan.n_beams} beams x {result.capture.scan.n_bins} bins)")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import signal
 import sys
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -20,8 +21,9 @@ def register(app: typer.Typer) -> None:
     def emulate(
         catalog: Path = typer.Option(Path("catalog"), "--catalog", help="Catalog root."),
         site: str = typer.Option(..., "--site", help="Id of a simulated site whose walls the head echoes."),
-        station: str = typer.Option(None, "--station", help="Station of the site's spec (default: the first)."),
-        tcp: int = typer.Option(None, "--tcp", help="Serve on this TCP port of 127.0.0.1 instead of a pty "
+        station: Optional[str] = typer.Option(None, "--station",
+                                              help="Station of the site's spec (default: the first)."),
+        tcp: Optional[int] = typer.Option(None, "--tcp", help="Serve on this TCP port of 127.0.0.1 instead of a pty "
                                 "(0 picks a free port)."),
         host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on with --tcp."),
         faults: str = typer.Option("", "--faults", help="e.g. 'drop=0.001,flip=0.001,garbage=0.02,stall=150,"

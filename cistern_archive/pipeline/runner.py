@@ -85,7 +85,11 @@ def resolve_stages(record: SiteRecord, registry: Registry) -> dict[str, Stage]:
     for stage in STAGES:
         choice = getattr(record.pipeline, stage)
         plugin = registry.load(stage, choice.plugin)
-        stages[stage] = Stage(plugin=plugin, params=registry.check_params(stage, choice.plugin, choice.params))
+        params = dict(choice.params)
+        ties = {s.station: s.below for s in record.scans if s.below is not None}
+        if stage == "localizer" and ties and "below" in plugin.params_model.model_fields:
+            params.setdefault("below", ties)  # the record's vertical ties (ScanRef.below)
+        stages[stage] = Stage(plugin=plugin, params=registry.check_params(stage, choice.plugin, params))
     return stages
 
 

@@ -10,7 +10,8 @@ Order of a rebuild of ``OUT``:
 4. skip the sites whose published ``build.json`` has the same key and status ``ok`` (unless ``force``);
 5. run :func:`~cistern_archive.service.worker.run_site` for the others on the chosen executor, in
    completion order, recording ``build`` and ``publish`` events and the published artifacts;
-6. render ``OUT/index.html`` from every published site and write ``OUT/summary.json``.
+6. render ``OUT/index.html`` from every published site (kept when nothing was published and the
+   set of sites is unchanged) and write ``OUT/summary.json``.
 """
 
 from __future__ import annotations
@@ -160,7 +161,24 @@ def _log_outcome(log: RunLog, outcome: SiteOutcome) -> None:
         log.write(line)
 
 
-def index_entries(out: Path, site_ids: list[str], statuses: dict[str, str]):
+def published_sites(out: Path, site_ids: list[str]) -> list[str]:
+    """The catalog's sites that have a published ``result.json``, sorted."""
+    return sorted(site_id for site_id in site_ids if (out / site_id / "result.json").is_file())
+
+
+def index_is_current(out: Path, sites: list[str], summary: RebuildSummary) -> bool:
+    """Whether ``OUT/index.html`` already shows exactly these published reports: nothing was published in
+    this run and the previous rebuild's index listed the same sites with the same code version."""
+    if any(site.status != "skipped" for site in summary.sites) or not (out / "index.html").is_file():
+        return False
+    try:
+        previous = json.loads((out / SUMMARY_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return previous.get("index_sites") == sites and previous.get("code_version") == summary.code_version
+
+
+def index_entries(out: Path, site_ids: list[str]):
     """One :class:`~cistern_archive.report.IndexEntry` per published site, in site-id order."""
     from cistern_archive.pipeline.results import SiteResult
     from cistern_archive.report.index import IndexEntry
@@ -173,12 +191,11 @@ def index_entries(out: Path, site_ids: list[str], statuses: dict[str, str]):
         except (OSError, ValueError):
             continue
         built_at = (published_build(site_dir) or {}).get("built_at") or ""
-        status = "skipped" if statuses.get(site_id) == "skipped" and result.status == "ok" else None
-        entries.append(IndexEntry.from_result(result, build_time=built_at, status=status))
+        entries.append(IndexEntry.from_result(result, build_time=built_at))
     return entries
 
 
-def write_index(out: Path, site_ids: list[str], statuses: dict[str, str]) -> Path:
+def write_index(out: Path, site_ids: list[str]) -> Path:
     """Render ``OUT/index.html`` for every published site of the catalog and move it into place atomically.
 
     The page is rendered in a temporary sibling folder whose entries link to the site folders, so that
@@ -195,7 +212,7 @@ def write_index(out: Path, site_ids: list[str], statuses: dict[str, str]) -> Pat
         for site_id in site_ids:
             if (out / site_id).is_dir():
                 (staging / site_id).symlink_to(out / site_id, target_is_directory=True)
-        page = render_index(index_entries(out, site_ids, statuses), staging)
+        page = render_index(index_entries(out, site_ids), staging)
         os.replace(page, out / "index.html")
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -297,8 +314,11 @@ def rebuild(
                      scheduler=scheduler, scheduler_file=scheduler_file, skipped=len(skipped),
                      report_config=report_config)
             summary.sites.sort(key=lambda s: s.id)
-            write_index(out, [loaded.record.id for loaded in report.records],
-                        {site.id: site.status for site in summary.sites})
+            summary.index_sites = published_sites(out, [loaded.record.id for loaded in report.records])
+            if index_is_current(out, summary.index_sites, summary):
+                log.write("index unchanged")
+            else:
+                write_index(out, summary.index_sites)
             summary.finished_at = utc_now()
             summary.seconds = round(time.perf_counter() - started, 3)
             store.index.finish_run(run_id, "interrupted" if summary.interrupted else

@@ -49,6 +49,7 @@ class RebuildSummary(BaseModel):
     sites: list[SiteOutcome] = Field(default_factory=list)
     catalog_problems: list[str] = Field(default_factory=list)
     recovered: list[str] = Field(default_factory=list, description="clean-up after an interrupted rebuild")
+    index_sites: list[str] = Field(default_factory=list, description="the sites OUT/index.html lists")
     stale_lock: dict | None = None
     interrupted: bool = False
     log: str = ""

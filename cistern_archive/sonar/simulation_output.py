@@ -98,8 +98,10 @@ def build_record(site: SimulatedSite, scan_files: list[str], spec_ref: str | Non
     """The site record of a simulated site (paths relative to the catalog root)."""
     spec = site.spec
     poses = {s.pose.station: s.pose for s in site.scans}
+    below = {station.name: station.below for station in spec.stations}
     scans = [
-        ScanRef(file=path, format="npz", station=s.pose.station, depth_m=round(s.scan.depth_m, 3))
+        ScanRef(file=path, format="npz", station=s.pose.station, depth_m=round(s.scan.depth_m, 3),
+                below=below.get(s.pose.station))
         for s, path in zip(site.scans, scan_files)
     ]
     references = [

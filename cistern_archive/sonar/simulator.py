@@ -14,7 +14,15 @@ The model of one stationary 360° scan (all levels in dB re an arbitrary source 
   and sloping (bell-shaped) walls a longer smear.
 * **Echo** of a ray hitting a wall at range ``r`` with incidence cosine ``c``:
   ``BS(c) - n_s log10 r - 2 a r`` with backscatter ``BS = 10 log10(c^2 + roughness)`` (Lambert-like), two-way
-  spreading ``n_s`` (40) and absorption ``a`` dB/m one way. The compressed (matched-filter) pulse puts the
+  spreading ``n_s`` (40) and absorption ``a`` dB/m one way. The two terms of ``BS`` are two scales of
+  a wall's relief: ``c^2`` is Lambert's law, the diffuse echo of relief of the order of the wavelength
+  (2 mm at 700 kHz), which falls to nothing at grazing incidence; ``roughness`` stands for relief much
+  larger than the wavelength (tool marks, joints, spalls, encrustation), whose facets and edges face the
+  head at any incidence, so it does not fall with incidence. A plastered or smooth ashlar wall
+  (``roughness`` ≈ 0.03) returns grazing echoes ~15 dB below normal incidence, so a long gallery's side
+  walls fade a few metres from the head; a rough rock-cut wall (0.2–0.5) returns them 4–8 dB below.
+  ``effects.wall_roughness`` sets it for a site, a level's ``wall_roughness`` per depth
+  (:class:`~cistern_archive.sonar.simulator_spec.LevelSpec`). The compressed (matched-filter) pulse puts the
   echo in range as a Gaussian of standard deviation ``pulse_length_m / 2`` centred on ``r``; its energy is
   integrated over each bin (**bin quantisation**).
 * **Time-varying gain**: ``+ n_t log10 max(r, r_min) + 2 a_t r``; ``n_t`` and ``a_t`` need not equal
@@ -393,8 +401,11 @@ def simulate_site(spec: SimulationSpec, *, effects: EffectsSpec | None = None) -
     scans = []
     for k, pose in enumerate(station_poses(spec)):
         rings = interpolate_slice(spec.site.slices(), pose.depth_m)
+        roughness = spec.site.wall_roughness(pose.depth_m, effects.wall_roughness)
+        walls = effects if roughness == effects.wall_roughness else effects.model_copy(
+            update={"wall_roughness": roughness})
         scans.append(simulate_scan(
-            rings, pose, spec.sonar, effects, station_rng(spec.seed, 1, k),
+            rings, pose, spec.sonar, walls, station_rng(spec.seed, 1, k),
             timestamp=start + k * spec.seconds_per_station, water_depth_m=spec.site.water_depth_m,
             levels=spec.site.slices() if len(spec.site.levels) > 1 else None,
         ))

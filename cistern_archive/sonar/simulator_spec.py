@@ -18,16 +18,29 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from cistern_archive.catalog.loader import parse_yaml, validation_problems
 from cistern_archive.catalog.models import Location, Segmentation
 from cistern_archive.errors import CatalogError
+from cistern_archive.sonar.gallery import Recess, gallery_ring
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class RecessSpec(_Strict):
+    """A niche or blind side branch cut into one wall of a corridor (:mod:`cistern_archive.sonar.gallery`)."""
+
+    reach: int = Field(ge=0, description="index of the corridor reach (segment of the centre line)")
+    side: Literal["left", "right"] = Field(description="wall, seen travelling along the centre line")
+    at_m: float = Field(ge=0, description="start, measured along the reach from its first point")
+    length_m: float = Field(gt=0, description="extent along the reach")
+    depth_m: float = Field(gt=0, description="how far it goes into the wall")
+
+
 class RingSpec(_Strict):
     """One closed wall outline: exactly one of ``polygon``, ``rectangle``, ``ellipse`` or ``corridor``.
 
-    ``corridor`` is a tunnel of constant ``width_m`` around a centre line (mitred at the bends).
+    ``corridor`` is a tunnel of constant ``width_m`` around a centre line (mitred at the bends); with
+    ``widths`` (one per reach) its section steps between reaches, and ``recesses`` cut niches and blind
+    side branches into its walls (:func:`cistern_archive.sonar.gallery.gallery_ring`).
     """
 
     polygon: list[tuple[float, float]] | None = Field(default=None, min_length=3)
@@ -39,6 +52,8 @@ class RingSpec(_Strict):
     )
     corridor: list[tuple[float, float]] | None = Field(default=None, min_length=2, description="centre line")
     width_m: float = Field(default=1.5, gt=0, description="width of a corridor")
+    widths: list[float] | None = Field(default=None, description="width of each corridor reach (overrides width_m)")
+    recesses: list[RecessSpec] = Field(default_factory=list, description="niches and side branches of a corridor")
     segments: int = Field(default=72, ge=8, le=2048, description="vertices of an ellipse")
     rotation_deg: float = 0.0
 
@@ -53,12 +68,26 @@ class RingSpec(_Strict):
                 raise ValueError("rectangle needs x_max > x_min and y_max > y_min")
         if self.ellipse is not None and min(self.ellipse[2:]) <= 0:
             raise ValueError("ellipse semi-axes must be positive")
+        if (self.widths is not None or self.recesses) and self.corridor is None:
+            raise ValueError("widths and recesses belong to a corridor")
+        if self.widths is not None and (len(self.widths) != len(self.corridor) - 1 or min(self.widths) <= 0):
+            raise ValueError(f"widths needs one positive width per reach ({len(self.corridor) - 1})")
+        if self.corridor is not None and (self.widths is not None or self.recesses):
+            self.vertices()  # a recess that does not fit its reach is refused here
         return self
 
     def vertices(self) -> np.ndarray:
         """The ring's vertices, shape (K, 2), counter-clockwise, rotated about the shape's centre."""
         if self.polygon is not None:
             ring = np.asarray(self.polygon, dtype=np.float64)
+        elif self.corridor is not None and (self.widths is not None or self.recesses):
+            reaches = len(self.corridor) - 1
+            ring = gallery_ring(
+                np.asarray(self.corridor, dtype=np.float64),
+                self.widths if self.widths is not None else [self.width_m] * reaches,
+                [Recess(r.reach, 1 if r.side == "left" else -1, r.at_m, r.length_m, r.depth_m)
+                 for r in self.recesses],
+            )
         elif self.corridor is not None:
             ring = corridor_ring(np.asarray(self.corridor, dtype=np.float64), self.width_m)
         elif self.rectangle is not None:
@@ -98,11 +127,19 @@ def corridor_ring(centre: np.ndarray, width_m: float) -> np.ndarray:
 
 
 class LevelSpec(_Strict):
-    """The walls at one depth: the outer wall and optional islands (pillars)."""
+    """The walls at one depth: the outer wall and optional islands (pillars).
+
+    ``wall_roughness`` is the walls' diffuse backscatter at this depth (the isotropic term of the
+    simulator's ``cos^2 + roughness`` model, :mod:`cistern_archive.sonar.simulator`); when given it
+    replaces ``effects.wall_roughness`` and is interpolated linearly in depth between the levels that
+    give it. Plastered or smooth ashlar walls: about 0.03 (grazing echoes ~15 dB below normal
+    incidence); rough rock-cut walls with tool marks and joints: 0.2-0.5.
+    """
 
     depth_m: float = Field(ge=0)
     walls: RingSpec
     islands: list[RingSpec] = Field(default_factory=list)
+    wall_roughness: float | None = Field(default=None, ge=0, description="diffuse backscatter of the walls")
 
     def rings(self) -> list[np.ndarray]:
         return [self.walls.vertices()] + [island.vertices() for island in self.islands]
@@ -123,6 +160,14 @@ class SiteSpec(_Strict):
 
     def slices(self) -> list[tuple[float, list[np.ndarray]]]:
         return [(level.depth_m, level.rings()) for level in self.levels]
+
+    def wall_roughness(self, depth_m: float, default: float) -> float:
+        """The walls' diffuse backscatter at ``depth_m`` (``default`` if no level gives one)."""
+        given = sorted((level.depth_m, level.wall_roughness) for level in self.levels
+                       if level.wall_roughness is not None)
+        if not given:
+            return default
+        return float(np.interp(depth_m, [d for d, _ in given], [r for _, r in given]))
 
 
 class SonarSpec(_Strict):
@@ -186,6 +231,11 @@ class StationSpec(_Strict):
     y_m: float
     yaw_deg: float = 0.0
     depth_m: float = Field(default=1.0, ge=0)
+    below: str | None = Field(
+        default=None,
+        description="the team's note that the vehicle descended vertically from this earlier station "
+        "(written to the record's scan as ``below``); give x_m, y_m with the descent's true drift",
+    )
 
 
 class RouteSpec(_Strict):
@@ -255,6 +305,9 @@ class SimulationSpec(_Strict):
         names = [s.name for s in self.stations]
         if len(set(names)) != len(names):
             raise ValueError("station names must be unique")
+        for k, station in enumerate(self.stations):
+            if station.below is not None and station.below not in names[:k]:
+                raise ValueError(f"station {station.name!r}: below {station.below!r} is not an earlier station")
         return self
 
 

@@ -36,6 +36,7 @@ from cistern_archive.tritech.messages import HeadSettings
 
 __all__ = [
     "AcquisitionResult",
+    "find_site",
     "RawRecorder",
     "acquire_scan",
     "append_scan_to_record",
@@ -84,8 +85,8 @@ class AcquisitionResult:
 
     Attributes
     ----------
-    raw_path : Path
-        The byte capture (always kept).
+    raw_path : Path or None
+        The byte capture (kept whenever a byte arrived; None when the head sent nothing).
     scan_path : Path or None
         The interchange scan (None when no scan line arrived).
     record_path : Path or None
@@ -99,7 +100,7 @@ class AcquisitionResult:
         Human-readable remarks (archive skipped, partial scan...).
     """
 
-    raw_path: Path
+    raw_path: Path | None
     scan_path: Path | None
     record_path: Path | None
     station: str
@@ -239,7 +240,7 @@ def _archive(catalog: Path, site_id: str, files: list[tuple[Path, str]], archive
 
 def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: str, *, depth_m: float,
                  heading_deg: float, settings: HeadSettings | None = None, config: DriverConfig | None = None,
-                 archive_dir: str | os.PathLike | None = None, use_archive: bool = True,
+                 archive_dir: str | os.PathLike | None = None, use_archive: bool = True, accept_missing: int = 0,
                  on_line: Callable[[ScanAssembler], None] | None = None,
                  log: Callable[[str], None] | None = None) -> AcquisitionResult:
     """Record one stationary scan from the head on ``port`` into site ``site_id`` of ``catalog``.
@@ -256,6 +257,8 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
         Head depth (m, positive down) and compass heading (degrees clockwise from north) during the scan.
     settings : HeadSettings, optional
         Default: :func:`settings_for_record`.
+    accept_missing : int
+        Bearings that may stay empty after one revolution (see :func:`~.driver.collect_scan`).
     on_line, log : callable, optional
         Progress and status callbacks.
 
@@ -282,20 +285,25 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
     with RawRecorder(raw_path) as recorder:
         driver = MicronDriver(port, settings, config=config, raw_sink=recorder, log=log)
         try:
-            capture = collect_scan(driver, station=station, depth_m=depth_m, yaw_rad=yaw, on_line=on_line)
+            capture = collect_scan(driver, station=station, depth_m=depth_m, yaw_rad=yaw, on_line=on_line,
+                                   accept_missing=accept_missing)
         finally:
             driver.close()
-    result = AcquisitionResult(raw_path=raw_path, scan_path=None, record_path=None, station=station,
-                               capture=capture, notes=notes)
+    if recorder.bytes_written == 0:
+        raw_path.unlink(missing_ok=True)  # an empty capture says nothing; do not leave it behind
+    result = AcquisitionResult(raw_path=raw_path if recorder.bytes_written else None, scan_path=None,
+                               record_path=None, station=station, capture=capture, notes=notes)
     if capture.error:
         notes.append(f"scan stopped early: {capture.error}")
     if capture.scan is None:
-        notes.append(f"no scan line arrived; the raw capture is kept in {raw_path}")
+        notes.append(f"no scan line arrived; the raw capture is kept in {raw_path}" if result.raw_path
+                     else "nothing arrived from the head")
         return result
     label = station if capture.complete else station + PARTIAL_SUFFIX
     raw_rel = raw_path.resolve().relative_to(root.resolve()).as_posix()
     scan = capture.scan.replace(station=label, settings={**capture.scan.settings, "raw_file": raw_rel,
-                                                         "heading_deg": heading_deg})
+                                                         "heading_deg": heading_deg,
+                                                         "requested": settings.as_record()})
     scan_path = write_scan(scan, _unique(data_dir / f"{label}.npz"))
     os.chmod(scan_path, 0o644)
     result.scan_path, result.station = scan_path, label
@@ -308,6 +316,8 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
         "time": dt.datetime.fromtimestamp(scan.timestamp, tz=dt.timezone.utc).isoformat(timespec="seconds"),
     }
     result.record_path = append_scan_to_record(loaded, entry)
+    if capture.complete and capture.missing:
+        notes.append(f"{capture.missing} bearing(s) missing, accepted (--accept-gaps)")
     if not capture.complete:
         notes.append(f"partial scan ({capture.missing} of {ScanAssembler(settings.step).n_slots} bearings "
                      f"missing) recorded as station {label!r}")

@@ -33,7 +33,7 @@ import numpy as np
 import serial
 
 from cistern_archive.errors import CisternError
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.sonar.scan import Scan, wrap_angle
 from cistern_archive.tritech.codec import (
     STEPS_PER_REV,
     HeadData,
@@ -169,18 +169,18 @@ class MicronDriver:
     # port ----------------------------------------------------------------------------------------
 
     def open(self) -> "MicronDriver":
-        """Open the port at 115200 8N1 and flush stale input."""
+        """Open the port at 115200 8N1 and flush stale input (a port object given open is used as is)."""
         if self._serial is not None:
             return self
         try:
             if isinstance(self._port_arg, str):
                 self._serial = serial.serial_for_url(self._port_arg, baudrate=BAUD, bytesize=8, parity="N",
                                                      stopbits=1, timeout=0.02, write_timeout=2.0)
+                self._serial.reset_input_buffer()  # stale bytes of an earlier session
             else:
-                self._serial = self._port_arg
+                self._serial = self._port_arg  # the caller's port: its buffered input is kept
                 if not self._serial.is_open:
                     self._serial.open()
-            self._serial.reset_input_buffer()
             self._fd = _waitable_fd(self._serial)
             if self._fd is not None:
                 self._serial.timeout = 0  # reads return what is there; waiting is done with select
@@ -480,8 +480,12 @@ class ScanAssembler:
     """Gathers scan lines into one revolution: one line per bearing slot of ``step`` (first line wins).
 
     A revolution is complete when every one of the ``6400 / step`` slots holds a line; lines lost to a
-    corrupted packet or a reboot are filled on the next pass. Lines whose geometry (bins, ADInterval,
-    8/4-bit) differs from the first are refused and counted.
+    corrupted packet or a reboot are filled on the next pass.
+
+    SeaNet has no checksum (§1.3), so a bit flipped inside a header field can pass the framing checks.
+    A line is therefore refused (and counted) when any echoed setting differs from the first line's
+    (device type, HdCtrl, range scale, ADSpan, ADLow, ADInterval, step, limits, bin count) or when its
+    bearing is not a whole number of steps from the first line's.
     """
 
     step: int
@@ -510,8 +514,7 @@ class ScanAssembler:
         if self.first is None:
             self.first = line
             self.started_at = time.time() if at is None else at
-        elif (line.n_bins, line.ad_interval, line.adc8on) != (self.first.n_bins, self.first.ad_interval,
-                                                              self.first.adc8on):
+        elif _echo_key(line) != _echo_key(self.first) or (line.bearing - self.first.bearing) % self.step:
             self.refused += 1
             return False
         slot = int(round(line.bearing / self.step)) % self.n_slots
@@ -536,7 +539,7 @@ class ScanAssembler:
         chosen = [self.lines[s] for s in order]
         bearings = np.asarray(bearing_to_rad(np.array([line.bearing for line in chosen])), dtype=np.float64)
         if first.inverted:
-            bearings = -bearings
+            bearings = np.asarray(wrap_angle(-bearings), dtype=np.float64)
         intensities = np.stack([line.bins for line in chosen]).astype(np.uint8)
         settings = dict(first.settings())
         settings.update({"partial": not self.complete, "missing_beams": self.missing,
@@ -549,9 +552,15 @@ class ScanAssembler:
                     beam_width_rad=math.radians(3.0), station=station, settings=settings)
 
 
+def _echo_key(line: HeadData) -> tuple:
+    """The settings a head echoes in every line of one configuration (§9.1)."""
+    return (line.device_type, line.hd_ctrl, line.range_scale_raw, line.ad_span, line.ad_low, line.ad_interval,
+            line.step_size, line.left_limit, line.right_limit, line.dbytes, line.n_bins)
+
+
 def collect_scan(driver: MicronDriver, *, station: str = "", depth_m: float = 0.0, yaw_rad: float = 0.0,
-                 max_revolutions: float = 3.0, on_line: Callable[[ScanAssembler], None] | None = None,
-                 start: bool = True) -> ScanCapture:
+                 max_revolutions: float = 3.0, accept_missing: int = 0,
+                 on_line: Callable[[ScanAssembler], None] | None = None, start: bool = True) -> ScanCapture:
     """Record one stationary 360° scan (the driver must be configured for continuous rotation).
 
     Parameters
@@ -562,15 +571,19 @@ def collect_scan(driver: MicronDriver, *, station: str = "", depth_m: float = 0.
         Stored in the scan (yaw is the map-frame heading, see :mod:`cistern_archive.sonar.scan`).
     max_revolutions : float
         Give up filling gaps after this many revolutions' worth of lines; the scan is then partial.
+    accept_missing : int
+        After one revolution's worth of lines, stop if at most this many bearings are still empty and
+        count the scan as complete (its ``missing_beams`` says how many). 0 (default) fills every gap,
+        which costs one more revolution whenever a line was lost.
     on_line : callable, optional
         Called after every line with the assembler (progress display).
 
     Returns
     -------
     ScanCapture
-        Complete, or partial with the reason; a KeyboardInterrupt or a :class:`LinkError` during streaming
-        ends collection and returns what was gathered (the error text is in ``error``; the interrupt is
-        re-raised by the caller's choice through ``ScanCapture.error == "interrupted"``).
+        Complete, or partial with the reason in ``error``. A :class:`LinkError` (start-up failure, link
+        lost, head silent through its reboots) or a KeyboardInterrupt ends collection without raising:
+        what was gathered is returned, and ``error`` is the link error's text or ``"interrupted"``.
     """
     if not driver.settings.continuous:
         raise ValueError("a 360-degree scan needs continuous rotation (HeadSettings.continuous = True)")
@@ -584,7 +597,8 @@ def collect_scan(driver: MicronDriver, *, station: str = "", depth_m: float = 0.
             assembler.add(line)
             if on_line is not None:
                 on_line(assembler)
-            if assembler.complete:
+            if assembler.complete or (assembler.received >= assembler.n_slots
+                                      and assembler.missing <= accept_missing):
                 break
             if assembler.received >= limit:
                 error = f"{assembler.missing} bearing slot(s) still empty after {assembler.received} lines"
@@ -593,6 +607,7 @@ def collect_scan(driver: MicronDriver, *, station: str = "", depth_m: float = 0.
         error = "interrupted"
     except LinkError as exc:
         error = str(exc)
-    extra = {"port": driver.port_name, "link": driver.stats.as_dict()}
+    complete = assembler.first is not None and assembler.missing <= accept_missing and error != "interrupted"
+    extra = {"port": driver.port_name, "link": driver.stats.as_dict(), "partial": not complete}
     scan = assembler.build(station=station, depth_m=depth_m, yaw_rad=yaw_rad, extra=extra)
-    return ScanCapture(scan=scan, complete=assembler.complete, missing=assembler.missing, error=error)
+    return ScanCapture(scan=scan, complete=complete, missing=assembler.missing, error=error)

@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.catalog.loader import load_record, record_paths
 from cistern_archive.errors import CatalogError
 from cistern_archive.sonar.geometry import Slice, interpolate_slice
 from cistern_archive.sonar.simulator import TruePose, simulate_scan, station_poses
 from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec, load_spec
+from cistern_archive.tritech.acquire import find_site
 from cistern_archive.tritech.codec import (
     HDCTRL_INVERT,
     HDCTRL_STARELLIM,
@@ -69,6 +69,7 @@ __all__ = [
 ]
 
 AHEAD = 3200
+TYPICAL_IGAIN, TYPICAL_AD_LOW, TYPICAL_AD_SPAN = 84, 8, 81
 
 
 # ------------------------------------------------------------------------------------------------
@@ -126,7 +127,7 @@ class SimulatedEcho:
             Unknown site, a site without a simulation spec, or an unknown station.
         """
         root = Path(catalog)
-        loaded = find_record(root, site_id)
+        loaded = find_site(root, site_id)
         if loaded.record.simulation is None:
             raise CatalogError([f"{loaded.path}: site {site_id!r} has no 'simulation' spec; the emulator echoes "
                                 "simulated sites only"])
@@ -144,25 +145,25 @@ class SimulatedEcho:
 
         Row ``k`` is the beam ``k x step`` clockwise from ahead (bearing ``3200 + k x step``), as
         :func:`~cistern_archive.sonar.simulator.beam_bearings` orders them.
+
+        The spec's AD window is taken as the head's at the typical command (IGain 84, ADLow 8, ADSpan 81,
+        §12.3); the command's departures from it move the window: ``+80/210 dB`` per IGain unit lowers the
+        floor, ADLow and ADSpan shift and scale it at ``80/255 dB`` per unit (§7.4).
         """
         step = max(1, cmd.step_size)
         n_bins = max(1, cmd.n_bins)
+        gain_db = (cmd.igain[0] - TYPICAL_IGAIN) * 80.0 / 210.0
+        low_db = self.sonar.ad_low_db + (cmd.ad_low - TYPICAL_AD_LOW) * 80.0 / 255.0 - gain_db
+        span_db = max(self.sonar.ad_span_db + (cmd.ad_span - TYPICAL_AD_SPAN) * 80.0 / 255.0, 1.0)
         sonar = self.sonar.model_copy(update={
             "range_m": max(n_bins * cmd.bin_size_m(speed_of_sound), 0.01),
             "bins": n_bins,
             "step_deg": step * 360.0 / STEPS_PER_REV,
+            "ad_low_db": low_db,
+            "ad_span_db": span_db,
         })
         simulated = simulate_scan(self.rings, self.pose, sonar, self.effects, rng, water_depth_m=self.water_depth_m)
         return np.asarray(simulated.scan.intensities)
-
-
-def find_record(catalog: Path, site_id: str):
-    """The loaded record of ``site_id`` under ``catalog`` (CatalogError naming the catalog if absent)."""
-    for path in record_paths(catalog):
-        loaded = load_record(path, catalog)
-        if loaded.record.id == site_id:
-            return loaded
-    raise CatalogError([f"{catalog}: no site record with id {site_id!r}"])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -305,7 +306,7 @@ class EmulatedHead:
     echo : SimulatedEcho
         The geometry the head sees.
     rng : numpy.random.Generator
-        Drives the sonar model's noise and the fault plan's timing choices.
+        Drives the sonar model's noise (speckle, ghosts, spikes).
     faults : FaultPlan
         Stalls and the spontaneous reboot (byte faults are applied on the wire by :class:`FaultInjector`).
     timing : HeadTiming

@@ -88,8 +88,8 @@ DEVICE_TYPE_DST = 0x11
 def _expect(packet: Packet, msg_type: MessageType, size: int | None = None, at_least: int | None = None) -> bytes:
     """The payload of ``packet`` after checking its type and length; PacketError names the offset."""
     if packet.type != msg_type:
-        raise PacketError(f"expected {Packet(0, 0, int(msg_type), 0, 0, b'').type_name}, got {packet.type_name}",
-                          packet.offset)
+        wanted = Packet(sid=0, did=0, type=int(msg_type), seq=0, node=0, payload=b"").type_name
+        raise PacketError(f"expected {wanted}, got {packet.type_name}", packet.offset)
     payload = packet.payload
     if size is not None and len(payload) != size:
         raise PacketError(f"{packet.type_name} payload is {len(payload)} bytes, expected {size}", packet.offset)

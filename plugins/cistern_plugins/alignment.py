@@ -268,9 +268,9 @@ class ReferenceModel:
         return assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, inlier_distance_m)
 
     def assess_pair(self, moving: RangeScan, pose: np.ndarray, limits: ConvergenceThresholds) -> AlignmentQuality:
-        """Fit of the moving scan placed by ``pose``, checked both ways: the inlier ratio is the smaller of
-        the moving-onto-reference and reference-onto-moving shares, the free-space violation ratio the
-        larger."""
+        """Fit of the moving scan placed by ``pose``, checked both ways: when the reference-onto-moving
+        inlier share is the smaller one it is used (with the smaller of the two inlier counts and
+        constraints); the free-space violation ratio is the larger of the two directions."""
         src = scan_points(moving)
         moved = transform(src, pose)
         q = self.assess(moved, limits.inlier_distance_m)

@@ -22,6 +22,8 @@ below ``valley_ratio`` of the best), or a ridge — one elongated peak, as a gal
 gives, whose position along the ridge is unknown to at least ``ambiguity_distance_m``; and the refined placement passes the shared test
 of :mod:`cistern_plugins.alignment`. The winning pose is refined to sub-cell accuracy by a few
 point-to-line ICP iterations, as Cartographer refines its correlative estimate with a local solver.
+The result's ``iterations`` counts the finest-level poses that survived the pruning and ``weight`` is
+the best score.
 """
 
 from __future__ import annotations

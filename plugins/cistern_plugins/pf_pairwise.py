@@ -60,6 +60,23 @@ map_occupied="cone", verify=False``. The departures:
   well. Eqs. 5–6 alone accept a filter that collapsed onto one of several equally good places.
 * ``min_informative < 1`` (off by default) normalises the weight by the beams that land where ``m_i``
   has evidence instead of by all beams; ``map_free`` narrows the free-space cone of ``m_i``.
+* ``restarts > 0`` (off by default): when the filter from the uniform start fails (not converged or
+  rejected by verification), up to that many filters are restarted around the best positions of the
+  coarse score grid that verification uses (:func:`grid_modes`), and the first one that converges and
+  verifies is reported. On the demo gallery it recovered one pair and let two more wrong ones through
+  (``benchmarks/RESULTS.md``), so it stays off.
+
+Limits
+------
+Along a straight gallery with parallel side walls and no feature in range (no bend, end, niche or change
+of section), every position along the axis explains the side walls equally well: the along-axis offset
+is not observable from the scans, whatever the measurement model. The filter then either spreads along
+the axis (eq. 5 not met) or collapses on one of the equally good positions, which verification rejects
+as ambiguous (or, when the rival scores just under ``ambiguity_ratio``, lets through an estimate
+decimetres to metres off). Closer stations do not cure this; features in range do (the last, plain
+8 m of the demo ``water-gallery`` show it). Sloping walls seen through the 35° vertical lobe (bell-shaped cisterns) return the
+leading edge of a smear whose range depends on the distance to the wall, so two scans of one depth
+see slightly different outlines and their matches are biased by 0.1–0.3 m.
 """
 
 from __future__ import annotations
@@ -107,6 +124,9 @@ class PFParams(StageParams):
     ambiguity_ratio: float = Field(0.85, gt=0, le=1, description="an alternative scoring this share of the best is a rival")
     max_crossing: float = Field(0.1, ge=0, le=1, description="largest share of beams that may cross a wall of m_i")
     verify_beams: int = Field(100, ge=10, description="beams used by the ambiguity search (evenly subsampled)")
+    restarts: int = Field(
+        0, ge=0, le=10, description="filters restarted at the best-scoring grid positions when the first fails"
+    )
     history_snapshots: int = Field(4, ge=0, le=50, description="particle snapshots kept for the report")
     snapshot_particles: int = Field(200, ge=1, description="particles kept per snapshot")
     map_l_occ: float = Field(0.85, gt=0, description="log-odds of an echo cell in m_i")
@@ -356,12 +376,49 @@ def _initial_particles(n: int, p: PFParams, rng: np.random.Generator) -> np.ndar
     return np.hstack([xy, theta])
 
 
+@dataclass(frozen=True, eq=False)
+class _Outcome:
+    """One run of the filter: the estimate, whether it converged and verified, and why not."""
+
+    estimate: tuple[float, float, float]
+    weight: float
+    converged: bool
+    iterations: int
+    reason: str
+    covariance: np.ndarray
+    history: MatchHistory
+
+
 def _run_filter(
     model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, start: float
 ) -> MatchResult:
-    """Table II: propagate, weigh, average (eqs. 5–6), resample, until converged or Num_Iterations."""
+    """Table II from a uniform start; if it fails, up to ``restarts`` filters started at the best
+    positions of the coarse score grid (:func:`grid_modes`). The first run that converges and passes
+    :func:`verify_unique` is reported; if none does, the first run and its reason."""
+    first = _filter(model, beams, p, rng, _initial_particles(p.n_particles * p.init_oversample, p, rng))
+    outcome = first
+    if not first.converged and p.restarts > 0 and first.iterations > 0:
+        for x, y in grid_modes(model, beams, 0.0, p, p.restarts):
+            xy = np.array([x, y]) + rng.normal(0.0, p.verify_step_m / 2.0, size=(p.n_particles, 2))
+            theta = rng.normal(0.0, math.radians(p.theta_init_std_deg), size=(p.n_particles, 1))
+            attempt = _filter(model, beams, p, rng, np.hstack([xy, theta]))
+            if attempt.converged:
+                outcome = attempt
+                break
+    if not outcome.converged and p.restarts > 0 and first.iterations > 0:
+        outcome = _Outcome(**{**first.__dict__, "reason": first.reason + f" (and after {p.restarts} restarts)"})
+    dx, dy, theta = outcome.estimate
+    return MatchResult(
+        i=-1, j=-1, dx_m=dx, dy_m=dy, dyaw_rad=theta, weight=outcome.weight, converged=outcome.converged,
+        iterations=outcome.iterations, seconds=time.perf_counter() - start, reason=outcome.reason,
+        covariance=outcome.covariance, history=outcome.history,
+    )
+
+
+def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, particles: np.ndarray) -> _Outcome:
+    """Table II: propagate, weigh, average (eqs. 5–6), resample, until converged or Num_Iterations;
+    then :func:`verify_unique` if ``verify``."""
     noise = np.array([p.sigma_n_xy_m, p.sigma_n_xy_m, math.radians(p.sigma_n_theta_deg)])
-    particles = _initial_particles(p.n_particles * p.init_oversample, p, rng)
     history = _History(p)
     w_avg = s_avg = float("nan")
     converged = False
@@ -390,19 +447,46 @@ def _run_filter(
     if converged and p.verify:
         reason = verify_unique(model, beams, (dx, dy, theta), p)
         converged = not reason
-    return MatchResult(
-        i=-1, j=-1,
-        dx_m=dx,
-        dy_m=dy,
-        dyaw_rad=theta,
-        weight=w_avg,
-        converged=converged,
-        iterations=iterations,
-        seconds=time.perf_counter() - start,
-        reason=reason,
-        covariance=np.cov(particles.T),
-        history=history.finish(iteration, particles, w),
+    return _Outcome(
+        estimate=(dx, dy, theta), weight=w_avg, converged=converged, iterations=iterations, reason=reason,
+        covariance=np.cov(particles.T), history=history.finish(iteration, particles, w),
     )
+
+
+def _grid_scores(model: _MapModel, beams: _Beams, theta: float, p: PFParams,
+                 extra: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Positions of the ``L_init`` square on a ``verify_step_m`` grid (plus ``extra``, last) and their
+    mean per-beam scores in the likelihood field smoothed to that step, the heading fixed at ``theta``."""
+    if beams.ranges.size > p.verify_beams:
+        keep = np.linspace(0, beams.ranges.size - 1, p.verify_beams).round().astype(np.int64)
+        beams = _Beams(ranges=beams.ranges[keep], cos=beams.cos[keep], sin=beams.sin[keep])
+    half = 0.5 * p.l_init_m
+    axis = np.arange(-half, half + 1e-9, p.verify_step_m)
+    gx, gy = np.meshgrid(axis, axis)
+    cand = np.column_stack([gx.ravel(), gy.ravel()])
+    if extra is not None:
+        cand = np.vstack([cand, np.array(extra)[None, :]])
+    c, s = math.cos(theta), math.sin(theta)
+    ux = c * beams.cos - s * beams.sin
+    uy = s * beams.cos + c * beams.sin
+    flat = model.lookup.flat_index(cand[:, 0:1] + beams.ranges * ux, cand[:, 1:2] + beams.ranges * uy)
+    return cand, model.coarse_flat[flat].mean(axis=1, dtype=np.float64)
+
+
+def grid_modes(model: _MapModel, beams: _Beams, theta: float, p: PFParams, k: int) -> list[tuple[float, float]]:
+    """The ``k`` best-scoring grid positions at least ``ambiguity_radius_m`` apart (positive scores only)."""
+    cand, score = _grid_scores(model, beams, theta, p)
+    half = 0.5 * p.l_init_m - p.verify_step_m
+    score = np.where(np.abs(cand).max(axis=1) <= half, score, -np.inf)
+    modes: list[tuple[float, float]] = []
+    for _ in range(k):
+        best = int(np.argmax(score))
+        if not score[best] > 0:
+            break
+        modes.append((float(cand[best, 0]), float(cand[best, 1])))
+        score = np.where(np.hypot(cand[:, 0] - cand[best, 0], cand[:, 1] - cand[best, 1]) > p.ambiguity_radius_m,
+                         score, -np.inf)
+    return modes
 
 
 def crossing_fraction(model: _MapModel, beams: _Beams, estimate: tuple[float, float, float], p: PFParams) -> float:
@@ -435,17 +519,7 @@ def verify_unique(model: _MapModel, beams: _Beams, estimate: tuple[float, float,
     if crossing > p.max_crossing:
         return (f"{100 * crossing:.0f} % of the beams pass through walls of the reference map before their "
                 f"echo (more than max_crossing={p.max_crossing:g}): the scans contradict each other here")
-    if beams.ranges.size > p.verify_beams:
-        keep = np.linspace(0, beams.ranges.size - 1, p.verify_beams).round().astype(np.int64)
-        beams = _Beams(ranges=beams.ranges[keep], cos=beams.cos[keep], sin=beams.sin[keep])
-    axis = np.arange(-half, half + 1e-9, p.verify_step_m)
-    gx, gy = np.meshgrid(axis, axis)
-    cand = np.column_stack([np.append(gx.ravel(), dx), np.append(gy.ravel(), dy)])
-    c, s = math.cos(theta), math.sin(theta)
-    ux = c * beams.cos - s * beams.sin
-    uy = s * beams.cos + c * beams.sin
-    flat = model.lookup.flat_index(cand[:, 0:1] + beams.ranges * ux, cand[:, 1:2] + beams.ranges * uy)
-    score = model.coarse_flat[flat].mean(axis=1, dtype=np.float64)
+    cand, score = _grid_scores(model, beams, theta, p, extra=(dx, dy))
     best = max(float(score[-1]), float(score[:-1][np.hypot(cand[:-1, 0] - dx, cand[:-1, 1] - dy) <= p.verify_step_m].max(initial=-1.0)))
     far = np.hypot(cand[:-1, 0] - dx, cand[:-1, 1] - dy) > p.ambiguity_radius_m
     if not far.any() or best <= 0:

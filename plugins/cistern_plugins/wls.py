@@ -28,6 +28,18 @@ with another scan; it sits at the origin. ``solve="chain"`` places the other sca
 leaves the scans beyond it unplaced); ``solve="global"`` instead solves one least-squares problem over
 every pair with an estimate (neighbours and, with ``third_scan``, the ``(i, i+2)`` pairs too), which can
 bridge a failed neighbour pair. Scans without a path to the reference are unplaced with the reason.
+
+Vertical ties
+-------------
+A scan recorded as taken ``below`` another station (the vehicle descended vertically between them,
+:class:`cistern_archive.catalog.models.ScanRef`) gives a pseudo-measurement ``d = (0, 0, 0)`` of weight
+``tie_weight`` between the two: the same horizontal position, the compasses trusted for the heading. It
+replaces any match of that pair (scans at different depths of a bell-shaped cistern see different
+outlines, so a match between them is not a measurement of their displacement) and joins the depth
+levels, each of which is otherwise localised from its own matches. This is the record-level form of the
+paper's manual alignment of depth levels ("manual mosaicking was used to align the scans in the third
+dimension"). ``below`` maps station → station above; the pipeline runner fills it from the record's
+scans when the record's pipeline does not set it.
 """
 
 from __future__ import annotations
@@ -51,6 +63,10 @@ class WLSParams(StageParams):
     solve: Literal["chain", "global"] = "chain"
     min_weight: float = Field(1e-3, gt=0, description="floor of a converged measurement's weight")
     use_yaw: bool = Field(True, description="apply the matcher's heading corrections")
+    below: dict[str, str] = Field(
+        default_factory=dict, description="vertical ties: station -> station it was taken directly below"
+    )
+    tie_weight: float = Field(10.0, gt=0, description="weight of a vertical tie (a converged match is ~0.3-0.9)")
 
 
 Measurement = tuple[np.ndarray, float]
@@ -79,7 +95,11 @@ class WLSLocalizer:
         n = len(scans)
         z = converged_measurements(matches, p.min_weight)
         reasons = _pair_reasons(matches)
+        ties = vertical_ties(scans, p.below)
+        for a, b in ties:
+            z[(a, b)] = z[(b, a)] = (np.zeros(3), p.tie_weight)
         edges = {(i, i + 1): combine(i, i + 1, z, n) for i in range(n - 1)}
+        edges.update({(a, b): combine(a, b, z, n) for a, b in ties})
         if p.solve == "global":
             edges.update({(i, j): combine(i, j, z, n) for (i, j) in z if i < j and (i, j) not in edges})
         edges = {k: v for k, v in edges.items() if v is not None}
@@ -101,6 +121,26 @@ class WLSLocalizer:
 
 def _params(params: StageParams) -> WLSParams:
     return params if isinstance(params, WLSParams) else WLSParams.model_validate(params.model_dump())
+
+
+def vertical_ties(scans: Sequence[RangeScan], below: dict[str, str]) -> list[tuple[int, int]]:
+    """Index pairs ``(min, max)`` of the scans tied by ``below`` (station -> station above).
+
+    Raises
+    ------
+    ValueError
+        A station named in ``below`` is not one of the scans.
+    """
+    index = {s.station: k for k, s in enumerate(scans)}
+    out = []
+    for lower, upper in sorted(below.items()):
+        missing = [name for name in (lower, upper) if name not in index]
+        if missing:
+            raise ValueError(f"vertical tie {lower!r} below {upper!r}: no scan of station {missing[0]!r}")
+        a, b = sorted((index[lower], index[upper]))
+        if a != b:
+            out.append((a, b))
+    return out
 
 
 def converged_measurements(matches: Sequence[MatchResult], min_weight: float) -> dict[tuple[int, int], Measurement]:
