@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 import pytest
+import yaml
 
 from catalog_helpers import RECORD, write_catalog
 from cistern_archive.catalog.loader import load_record
@@ -111,3 +112,11 @@ def test_load_record_raises_catalog_error(tmp_path):
 def test_record_model_round_trips_through_json():
     record = SiteRecord.model_validate({"id": "a", "name": "A", "scans": [{"file": "x.npz", "station": "S1"}]})
     assert SiteRecord.model_validate_json(record.model_dump_json()) == record
+
+
+def test_the_readme_example_record_is_valid():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    block = readme.split("A complete record, annotated")[1].split("```yaml\n", 1)[1].split("```", 1)[0]
+    record = SiteRecord.model_validate(yaml.safe_load(block))
+    assert record.id == "lair-pool"
+    assert record.references[0].measure.repeats == 10
