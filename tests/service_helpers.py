@@ -9,8 +9,7 @@ from pathlib import Path
 
 from cistern_archive.archive.digest import file_sha256
 
-# The typer app in standalone mode: exit codes exactly as the commands raise them.
-CLI = [sys.executable, "-c", "from cistern_archive.cli import app; app(prog_name='cistern-archive')"]
+CLI = [sys.executable, "-m", "cistern_archive"]
 # Reports without the 3D model and the per-pair/per-scan figures render in a fraction of the time;
 # the report has its own tests.
 FAST_REPORT = {"model": False, "max_pair_figures": 0, "max_fan_figures": 0, "dpi": 50}

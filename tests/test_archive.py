@@ -15,8 +15,7 @@ from cistern_archive import __version__
 from cistern_archive.archive import Archive, default_archive_dir, verify_archive
 from cistern_archive.archive.index import EVENT_TYPES
 
-# The typer app in standalone mode: exit codes exactly as the commands raise them.
-CLI = [sys.executable, "-c", "from cistern_archive.cli import app; app(prog_name='cistern-archive')"]
+CLI = [sys.executable, "-m", "cistern_archive"]
 
 
 def _raw(tmp_path: Path, name: str, data: bytes) -> Path:

@@ -213,3 +213,29 @@ def test_kill_9_in_the_middle_of_a_rebuild_then_rebuild_is_consistent(built, tmp
         assert verify_archive(archive).ok
         assert archive.index.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         assert [r["status"] for r in archive.index.runs()] == ["abandoned", "ok"]
+
+
+def test_ctrl_c_stops_the_rebuild_with_exit_130_and_keeps_the_previous_reports(built):
+    catalog, out = built
+    before = {site: _manifest(out / site) for site in SITES}
+    command = [*CLI, "rebuild", "--catalog", str(catalog), "--out", str(out), "--force"]
+    victim = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    deadline = time.monotonic() + 120
+    while not _leftovers(out):  # a site is being staged
+        if time.monotonic() > deadline or victim.poll() is not None:
+            victim.kill()
+            pytest.fail("the rebuild never started building a site")
+        time.sleep(0.02)
+    os.killpg(victim.pid, signal.SIGINT)  # what a terminal's Ctrl-C sends to the whole process group
+    stdout, stderr = victim.communicate(timeout=120)
+    assert victim.returncode == 130, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert not (out / ".rebuild.lock").exists()
+    for site in SITES:
+        assert report_is_complete(out / site)
+    unfinished = [s["id"] for s in summary["sites"] if s["status"] == "failed"]
+    assert unfinished and all(_manifest(out / site) == before[site] for site in unfinished)
+    after = rebuild(catalog, out, workers=1, report_config=FAST_REPORT)
+    assert _leftovers(out) == [] and after.exit_code == 0

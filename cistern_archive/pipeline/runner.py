@@ -229,7 +229,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
     if build.table is not None:
         result.dimensions = [
             DimensionResult(name=row.name, map_m=_finite(row.map_m), reference_m=row.reference_m,
-                            reference_kind=row.reference_kind, diff_m=_finite(row.diff_m), depth_m=row.depth_m,
+                            reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
+                            depth_m=_finite(row.depth_m) or 0.0,
                             probe_std_m=_finite(row.probe_std_m), probes_m=[float(p) for p in row.probes],
                             note=row.note)
             for row in build.table.rows

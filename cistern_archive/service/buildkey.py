@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from cistern_archive.catalog.loader import LoadedRecord
+from cistern_archive.errors import PluginError
 from cistern_archive.pipeline.contracts import STAGES
 from cistern_archive.pipeline.registry import Registry
 
@@ -84,13 +85,17 @@ def plugin_material(loaded: LoadedRecord, registry: Registry) -> list[dict[str, 
     Raises
     ------
     PluginError
-        When a plugin cannot be loaded or its parameters are invalid (validation catches this first).
+        When a plugin is unknown (validation catches this first). A plugin that fails to import gives
+        its error in place of the resolved parameters, so the key changes once it is fixed.
     """
     items = []
     for stage in STAGES:
         choice = getattr(loaded.record.pipeline, stage)
         info = registry.info(stage, choice.plugin)
-        params = registry.check_params(stage, choice.plugin, choice.params).model_dump(mode="json")
+        try:
+            params = registry.check_params(stage, choice.plugin, choice.params).model_dump(mode="json")
+        except PluginError as exc:  # an installed plugin that fails to import: its site will fail
+            params = {"record_params": choice.params, "load_error": str(exc)}
         items.append({"stage": stage, "plugin": info.name, "distribution": info.distribution,
                       "version": info.version, "params": params,
                       "source": _module_digest(info.value.split(":")[0])})

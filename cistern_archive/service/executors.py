@@ -92,9 +92,18 @@ class LocalExecutor:
             pending = retry
 
     def close(self, *, cancel: bool = False) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
-            self._pool = None
+        """Shut the pool down; with ``cancel`` (an interrupt) stop the running builds at once.
+
+        A stopped build leaves only its temporary folder (removed by the next rebuild); it never
+        publishes after the rebuild has reported it unfinished.
+        """
+        if self._pool is None:
+            return
+        if cancel:
+            for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+                process.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=cancel)
+        self._pool = None
 
 
 class DaskExecutor:

@@ -290,7 +290,8 @@ def rebuild(
         summary.recovered = recover(out)
         for action in summary.recovered:
             log.write(f"recovery: {action}", "WARN")
-        report = validate_catalog(catalog, registry)
+        # A plugin that fails to import fails the sites that use it (exit 1), not the catalog (exit 2).
+        report = validate_catalog(catalog, registry, plugin_load_errors=False)
         summary.catalog_problems = list(report.problems)
         for problem in report.problems:
             log.write(problem, "ERROR")
@@ -342,10 +343,13 @@ def _fail_unfinished(tasks: list[SiteTask], done: set[str], summary: RebuildSumm
 def _execute(plans: list[SitePlan], summary: RebuildSummary, store: Archive, log: RunLog, progress: Progress, *,
              out: Path, catalog: Path, workers: int, scheduler: str | None, scheduler_file: Path | None,
              skipped: int, report_config: dict[str, Any] | None) -> None:
+    # Longest first (the pair count grows with the square of the scans), so that no long site is left
+    # to run alone at the end.
+    ordered = sorted(plans, key=lambda p: (-len(p.loaded.record.scans), p.site_id))
     tasks = [SiteTask(site_id=p.site_id, record_path=str(p.loaded.path.resolve()), catalog_root=str(catalog),
                       out=str(out), build_key=p.key.key, key_material=p.key.material, run_id=summary.run_id,
                       report_config=report_config)
-             for p in plans]
+             for p in ordered]
     executor = choose_executor(workers=workers, scheduler=scheduler, scheduler_file=scheduler_file) if tasks else None
     if executor is not None:
         summary.executor = executor.name if executor.name == "local" else f"dask {executor.address}"

@@ -39,6 +39,14 @@ class SiteTask:
     report_config: dict[str, Any] | None = None
 
 
+def build_time() -> str:
+    """When the report was built: ``SOURCE_DATE_EPOCH`` when set (reproducible pages), else now (UTC)."""
+    from cistern_archive.report.files import build_time_from_env, format_time
+
+    pinned = build_time_from_env()
+    return format_time(pinned) if pinned is not None else utc_now()
+
+
 def peak_rss_mb() -> float:
     """Peak resident memory of this process so far, in MiB."""
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
@@ -83,7 +91,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
         timings["report"] = round(time.perf_counter() - tick, 6)
         files = manifest(staged)
         write_json_atomic({"site_id": task.site_id, "build_key": task.build_key, "status": build.result.status,
-                           "run_id": task.run_id, "built_at": utc_now(), "files": files,
+                           "run_id": task.run_id, "built_at": build_time(), "files": files,
                            "key_material": task.key_material},
                           staged / BUILD_INFO)
         tick = time.perf_counter()
