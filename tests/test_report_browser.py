@@ -14,25 +14,18 @@ from pathlib import Path
 
 import pytest
 
+from browser_helpers import BROKEN_IMAGES, broken_links, launch_browser, open_page
 from report_fixtures import SITES, render_catalog
 
 pytestmark = pytest.mark.browser
 
-CHROMIUM = Path(os.environ.get("CISTERN_CHROMIUM", "/usr/bin/chromium"))
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]
 PAGES = ["index.html"] + [f"{site}/index.html" for site in SITES]
 
 
 @pytest.fixture(scope="module")
 def browser():
-    if not CHROMIUM.is_file():
-        pytest.skip(f"Chromium not found at {CHROMIUM} (Debian: apt-get install chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-    with sync_api.sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+    with launch_browser() as chromium:
         yield chromium
-        chromium.close()
 
 
 @pytest.fixture(scope="module")
@@ -50,34 +43,13 @@ def shots(tmp_path_factory) -> Path:
     return folder
 
 
-BROKEN_IMAGES = "() => Array.from(document.images).filter(i => !i.complete || i.naturalWidth === 0).map(i => i.src)"
-LINKS = "() => Array.from(document.querySelectorAll('a[href]')).map(a => a.href)"
-
-
-def open_page(browser, url: str, *, javascript: bool = True, media: str = "screen"):
-    context = browser.new_context(java_script_enabled=javascript, viewport={"width": 1200, "height": 900})
-    page = context.new_page()
-    problems: list[str] = []
-    page.on("console", lambda msg: problems.append(f"console {msg.type}: {msg.text}") if msg.type == "error" else None)
-    page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
-    page.on("requestfailed", lambda req: problems.append(f"request failed: {req.url} {req.failure}"))
-    page.emulate_media(media=media)
-    page.goto(url, wait_until="load")
-    return context, page, problems
-
-
 @pytest.mark.parametrize("name", PAGES)
 def test_page_loads_cleanly(browser, site, name):
     path = site / name
     context, page, problems = open_page(browser, path.as_uri())
     try:
         assert page.evaluate(BROKEN_IMAGES) == []
-        for href in page.evaluate(LINKS):
-            assert href.startswith("file://"), href
-            target, _, anchor = href[len("file://"):].partition("#")
-            assert Path(target).is_file(), href
-            if anchor and Path(target) == path:
-                assert page.locator(f"[id='{anchor}']").count() == 1, href
+        assert broken_links(page, path) == []
         if name != "index.html" and not name.startswith("broken"):
             table = page.locator("#dimension-table")
             assert table.is_visible()

@@ -148,9 +148,9 @@ def write_tables(result: SiteResult, labels: list[str], site_dir: Path) -> dict[
                 ";".join(format_number(p, 4) for p in d.probes_m)] for d in result.dimensions])
     write_csv(site_dir / "pairs.csv",
               ["i", "j", "station_i", "station_j", "dx_m", "dy_m", "dyaw_rad", "weight", "converged",
-               "iterations", "seconds", "reason"],
+               "iterations", "reason"],
               [[p.i, p.j, _label(labels, p.i), _label(labels, p.j), p.dx_m, p.dy_m, p.dyaw_rad, p.weight,
-                str(p.converged).lower(), p.iterations, p.seconds, p.reason] for p in result.pairs])
+                str(p.converged).lower(), p.iterations, p.reason] for p in result.pairs])
     write_csv(site_dir / "scans.csv",
               ["index", "station", "file", "placed", "x_m", "y_m", "sigma_x_m", "sigma_y_m", "yaw_rad",
                "heading_deg", "depth_m", "reason"],
@@ -308,7 +308,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     pairs = [{"label": f"{_label(labels, p.i)} → {_label(labels, p.j)}", "dx": signed(p.dx_m), "dy": signed(p.dy_m),
               "dyaw": signed(math.degrees(p.dyaw_rad), 2), "weight": number(p.weight, 3),
               "converged": "yes" if p.converged else "no", "iterations": str(p.iterations),
-              "seconds": number(p.seconds, 2), "reason": p.reason or "—",
+              "reason": p.reason or "—",
               "figure": (p.i, p.j) in pair_anchor, "anchor": pair_anchor.get((p.i, p.j), "")}
              for p in sorted(result.pairs, key=lambda p: (p.i, p.j))]
     has_truth = any(s.truth_x_m is not None for s in result.scans)
@@ -332,7 +332,6 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     seeds = [] if provenance is None else sorted(provenance.seeds.items())
     reference = result.reference_scan
     status_text = {"ok": "built", "failed": "failed"}.get(result.status, result.status)
-    total = sum(result.timings_s.values())
     return {
         "version": __version__,
         "build_time": format_time(build_time_from_env()),
@@ -346,7 +345,6 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "placed_count": sum(1 for s in result.scans if s.placed),
         "reference_label": _label(labels, reference) if reference is not None and reference >= 0 else "",
         "dimension_stats": _stat_rows(result.dimension_stats),
-        "total_time": f"{total:.2f} s in {len(result.timings_s)} stages" if result.timings_s else "",
         "figures": figures,
         "views": [views[id(f)] for f in model.views],
         "model_note": model.note,
@@ -362,7 +360,6 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "has_truth": has_truth,
         "plugins": plugins,
         "seeds": seeds,
-        "timings": [{"stage": k, "seconds": f"{v:.3f}"} for k, v in result.timings_s.items()],
         "downloads": downloads,
     }
 
