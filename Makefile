@@ -7,6 +7,7 @@ CATALOG ?= catalog
 OUT ?= site
 # Content-addressed archive of the raw inputs (SQLite index, provenance events); see `cistern-archive verify`.
 ARCHIVE ?= .archive
+WORKERS ?= $(shell nproc 2>/dev/null || echo 1)
 
 .PHONY: demo test test-slow test-all bench clean
 
@@ -17,8 +18,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/cistern-archive rebuild --catalog $(CATALOG) --out $(OUT) --archive $(ARCHIVE)
-	@echo "$(abspath $(OUT))/index.html"
+	$(BIN)/cistern-archive rebuild --catalog $(CATALOG) --out $(OUT) --archive $(ARCHIVE) --workers $(WORKERS)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -m "not slow" -q
