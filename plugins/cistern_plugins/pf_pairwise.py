@@ -86,7 +86,7 @@ import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import Callable, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -95,10 +95,13 @@ from cistern_archive.grid.evidence import DenseMap, SonarModel, dense_scan_map
 from cistern_archive.grid.raycast import FAR_M, OccupancyLookup
 from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, verdict
 
 
-class PFParams(StageParams):
-    """Parameters of :class:`PFPairwiseMatcher` (Tables I–II and Sec. IV of the paper)."""
+class PFParams(ConvergenceParams):
+    """Parameters of :class:`PFPairwiseMatcher` (Tables I–II and Sec. IV of the paper), plus the limits
+    of :class:`~cistern_plugins.alignment.ConvergenceParams` that ``verify_fit`` applies (``min_points``
+    is not used: ``min_beams`` refuses scans with too few echoes)."""
 
     cell_m: float = Field(0.05, gt=0, description="map cell size r_c (m); sigma_c = 2 r_c")
     n_particles: int = Field(500, ge=10, le=100_000, description="Num_Particles")
@@ -119,6 +122,12 @@ class PFParams(StageParams):
     max_beams: int = Field(200, ge=1, description="beams of the moving scan used (evenly subsampled)")
     min_beams: int = Field(10, ge=1, description="fewer echoes than this: not converged")
     verify: bool = Field(True, description="reject converged estimates that are ambiguous or on the search edge")
+    verify_fit: bool = Field(
+        True, description="reject converged estimates that fail the point matchers' shared fit verdict"
+    )
+    min_constraint: float = Field(0.0, ge=0, description="fit verdict: off (the ambiguity search does this)")
+    max_weak_std_m: float = Field(1.0, gt=0, description="fit verdict: off (the ambiguity search does this)")
+    max_violation_ratio: float = Field(1.0, ge=0, le=1, description="fit verdict: share of wall points in free space")
     verify_step_m: float = Field(0.15, gt=0, description="grid step of the ambiguity search (m)")
     ambiguity_radius_m: float = Field(0.5, gt=0, description="alternatives farther than this count as other modes")
     ambiguity_ratio: float = Field(0.85, gt=0, le=1, description="an alternative scoring this share of the best is a rival")
@@ -191,7 +200,7 @@ class PFPairwiseMatcher:
                 time.perf_counter() - start,
             )
         beams = _select_beams(moving, p.max_beams)
-        return _run_filter(model, beams, p, rng, start)
+        return _run_filter(model, beams, p, rng, start, fit_check(reference, moving, p))
 
     # ------------------------------------------------------------------------------------ map
     def _map(self, reference: RangeScan, p: PFParams) -> _MapModel:
@@ -389,19 +398,43 @@ class _Outcome:
     history: MatchHistory
 
 
+def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> Callable[[tuple[float, float, float]], str]:
+    """The shared convergence verdict of the point matchers (:func:`cistern_plugins.alignment.verdict`)
+    as a check of a verified estimate: why it fails ("" if it passes, or if ``verify_fit`` is off).
+
+    With the defaults only the inlier count, the inlier share (seen from both scans) and, when
+    ``max_violation_ratio < 1``, the free-space test apply; the corridor tests (``min_constraint``,
+    ``max_weak_std_m``) are off because :func:`verify_unique` judges ambiguity with the map itself.
+    """
+    model: list[ReferenceModel] = []
+
+    def check(estimate: tuple[float, float, float]) -> str:
+        if not p.verify_fit:
+            return ""
+        if not model:
+            model.append(ReferenceModel(reference))
+        quality = model[0].assess_pair(moving, np.array(estimate), p.limits())
+        why = verdict(quality, p.limits())
+        return f"fit check: {why}" if why else ""
+
+    return check
+
+
 def _run_filter(
-    model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, start: float
+    model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, start: float,
+    check: Callable[[tuple[float, float, float]], str],
 ) -> MatchResult:
     """Table II from a uniform start; if it fails, up to ``restarts`` filters started at the best
     positions of the coarse score grid (:func:`grid_modes`). The first run that converges and passes
-    :func:`verify_unique` is reported; if none does, the first run and its reason."""
-    first = _filter(model, beams, p, rng, _initial_particles(p.n_particles * p.init_oversample, p, rng))
+    :func:`verify_unique` and ``check`` (:func:`fit_check`) is reported; if none does, the first run and
+    its reason."""
+    first = _filter(model, beams, p, rng, _initial_particles(p.n_particles * p.init_oversample, p, rng), check)
     outcome = first
     if not first.converged and p.restarts > 0 and first.iterations > 0:
         for x, y in grid_modes(model, beams, 0.0, p, p.restarts):
             xy = np.array([x, y]) + rng.normal(0.0, p.verify_step_m / 2.0, size=(p.n_particles, 2))
             theta = rng.normal(0.0, math.radians(p.theta_init_std_deg), size=(p.n_particles, 1))
-            attempt = _filter(model, beams, p, rng, np.hstack([xy, theta]))
+            attempt = _filter(model, beams, p, rng, np.hstack([xy, theta]), check)
             if attempt.converged:
                 outcome = attempt
                 break
@@ -415,9 +448,10 @@ def _run_filter(
     )
 
 
-def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, particles: np.ndarray) -> _Outcome:
+def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, particles: np.ndarray,
+            check: Callable[[tuple[float, float, float]], str]) -> _Outcome:
     """Table II: propagate, weigh, average (eqs. 5–6), resample, until converged or Num_Iterations;
-    then :func:`verify_unique` if ``verify``."""
+    then :func:`verify_unique` if ``verify`` and ``check``."""
     noise = np.array([p.sigma_n_xy_m, p.sigma_n_xy_m, math.radians(p.sigma_n_theta_deg)])
     history = _History(p)
     w_avg = s_avg = float("nan")
@@ -446,6 +480,9 @@ def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generat
     dx, dy = float(particles[:, 0].mean()), float(particles[:, 1].mean())
     if converged and p.verify:
         reason = verify_unique(model, beams, (dx, dy, theta), p)
+        converged = not reason
+    if converged:
+        reason = check((dx, dy, theta))
         converged = not reason
     return _Outcome(
         estimate=(dx, dy, theta), weight=w_avg, converged=converged, iterations=iterations, reason=reason,
