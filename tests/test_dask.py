@@ -13,7 +13,7 @@ import pytest
 
 from cistern_archive.service.executors import DaskExecutor, LocalExecutor, choose_executor
 from cistern_archive.service.rebuild import rebuild
-from service_helpers import CLI, FAST_REPORT, comparable_result, copy_catalog, make_catalog
+from service_helpers import CLI, FAST_REPORT, comparable_result, make_catalog
 
 SITES = ["cistern-000", "cistern-001"]
 DASK = Path(sys.executable).with_name("dask")

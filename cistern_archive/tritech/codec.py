@@ -566,8 +566,34 @@ STATUS_ADC8 = 0x10
 RANGE_UNITS = ("m", "ft", "fathom", "yd")
 
 
+class HdCtrlFlags:
+    """The HdCtrl bits (§5) read from an ``hd_ctrl`` attribute; shared by head data and head commands."""
+
+    hd_ctrl: int
+
+    @property
+    def adc8on(self) -> bool:
+        """True for one byte per bin (HdCtrl bit 0)."""
+        return bool(self.hd_ctrl & HDCTRL_ADC8ON)
+
+    @property
+    def continuous(self) -> bool:
+        """Continuous 360° rotation (HdCtrl ``cont``) rather than a sector between the limits."""
+        return bool(self.hd_ctrl & HDCTRL_CONT)
+
+    @property
+    def scan_right(self) -> bool:
+        """Bearing increases (clockwise) while scanning (HdCtrl ``scanright``)."""
+        return bool(self.hd_ctrl & HDCTRL_SCANRIGHT)
+
+    @property
+    def inverted(self) -> bool:
+        """Head mounted upside-down (HdCtrl ``invert``)."""
+        return bool(self.hd_ctrl & HDCTRL_INVERT)
+
+
 @dataclass(frozen=True, eq=False)
-class HeadData:
+class HeadData(HdCtrlFlags):
     """A decoded ``mtHeadData`` scan line (§9.1; field indices are packet indices).
 
     Attributes
@@ -629,11 +655,6 @@ class HeadData:
     bins: np.ndarray
 
     @property
-    def adc8on(self) -> bool:
-        """True for one byte per bin (HdCtrl bit 0)."""
-        return bool(self.hd_ctrl & HDCTRL_ADC8ON)
-
-    @property
     def full_scale(self) -> int:
         """Largest bin value: 255 in 8-bit mode, 15 in 4-bit mode."""
         return 255 if self.adc8on else 15
@@ -641,21 +662,6 @@ class HeadData:
     @property
     def n_bins(self) -> int:
         return int(self.bins.shape[0])
-
-    @property
-    def continuous(self) -> bool:
-        """Continuous 360° rotation (HdCtrl ``cont``) rather than a sector between the limits."""
-        return bool(self.hd_ctrl & HDCTRL_CONT)
-
-    @property
-    def scan_right(self) -> bool:
-        """Bearing increases (clockwise) while scanning (HdCtrl ``scanright``)."""
-        return bool(self.hd_ctrl & HDCTRL_SCANRIGHT)
-
-    @property
-    def inverted(self) -> bool:
-        """Head mounted upside-down (HdCtrl ``invert``)."""
-        return bool(self.hd_ctrl & HDCTRL_INVERT)
 
     @property
     def range_scale(self) -> float:

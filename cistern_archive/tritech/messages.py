@@ -37,6 +37,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cistern_archive.tritech.codec import (
+    HdCtrlFlags,
     ADINTERVAL_S,
     DEFAULT_SPEED_OF_SOUND,
     HDCTRL_ADC8ON,
@@ -283,7 +284,7 @@ assert _HEAD_CMD.size == 51 and _V3B.size == 16
 
 
 @dataclass(frozen=True)
-class HeadCommand:
+class HeadCommand(HdCtrlFlags):
     """The normal mtHeadCommand (V3BParams 0x01, 66 bytes; or 0x1D + V3B block, 82 bytes), §7.2.
 
     Field names follow the sheet; angles are 1/16 gradian, ``ad_interval`` is in 640 ns units,
@@ -318,18 +319,6 @@ class HeadCommand:
     def variant(self) -> int:
         """0x01 (single channel, the DST's form) or 0x1D (with the V3B block)."""
         return V3B_NORMAL if self.v3b_block is None else V3B_DUAL
-
-    @property
-    def adc8on(self) -> bool:
-        return bool(self.hd_ctrl & HDCTRL_ADC8ON)
-
-    @property
-    def continuous(self) -> bool:
-        return bool(self.hd_ctrl & HDCTRL_CONT)
-
-    @property
-    def scan_right(self) -> bool:
-        return bool(self.hd_ctrl & HDCTRL_SCANRIGHT)
 
     def bin_size_m(self, speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> float:
         """``c x ADInterval x 640 ns / 2`` (§7.4)."""
