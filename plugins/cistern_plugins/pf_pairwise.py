@@ -85,7 +85,7 @@ import hashlib
 import math
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, ClassVar, Literal
 
 import numpy as np
@@ -125,9 +125,16 @@ class PFParams(ConvergenceParams):
     verify_fit: bool = Field(
         True, description="reject converged estimates that fail the point matchers' shared fit verdict"
     )
+    min_inlier_ratio: float = Field(0.25, ge=0, le=1, description="fit verdict: least inlier share, both ways")
     min_constraint: float = Field(0.0, ge=0, description="fit verdict: off (the ambiguity search does this)")
     max_weak_std_m: float = Field(1.0, gt=0, description="fit verdict: off (the ambiguity search does this)")
     max_violation_ratio: float = Field(1.0, ge=0, le=1, description="fit verdict: share of wall points in free space")
+    partial_inlier_ratio: float = Field(
+        0.5, ge=0, le=1, description="fit verdict: below this inlier share, partial_max_violation applies"
+    )
+    partial_max_violation: float = Field(
+        0.2, ge=0, le=1, description="fit verdict: largest free-space violation ratio of a partial-overlap fit"
+    )
     verify_step_m: float = Field(0.15, gt=0, description="grid step of the ambiguity search (m)")
     ambiguity_radius_m: float = Field(0.5, gt=0, description="alternatives farther than this count as other modes")
     ambiguity_ratio: float = Field(0.85, gt=0, le=1, description="an alternative scoring this share of the best is a rival")
@@ -413,8 +420,11 @@ def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> Callable[
             return ""
         if not model:
             model.append(ReferenceModel(reference))
-        quality = model[0].assess_pair(moving, np.array(estimate), p.limits())
-        why = verdict(quality, p.limits())
+        limits = p.limits()
+        quality = model[0].assess_pair(moving, np.array(estimate), limits)
+        why = verdict(quality, limits)
+        if not why and quality.inlier_ratio < p.partial_inlier_ratio:
+            why = verdict(quality, replace(limits, max_violation_ratio=p.partial_max_violation))
         return f"fit check: {why}" if why else ""
 
     return check
