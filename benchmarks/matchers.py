@@ -207,15 +207,11 @@ def run(n: int, seed: int, n_blind: int, sonar: str) -> dict:
     return out
 
 
-def rotate(v: np.ndarray, angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
-
-
 def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: dict | None = None) -> dict:
     """Position error of ``wls`` and ``pose-graph`` on a simulated site, for each matcher (with optional
     per-matcher parameters, as a site record would give them)."""
     from cistern_archive.catalog.loader import load_record
+    from cistern_archive.evaluation import in_compass_frame, reference_frame_errors
     from cistern_archive.pipeline.runner import load_scan, pair_rng
     from cistern_archive.sonar.segmentation import segment
 
@@ -243,17 +239,11 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
                 matches.append(cache[(i, j)])
             poses = loc.localize(scans, matches, lp)
             seconds = time.perf_counter() - start
-            errs = []
-            if poses.reference >= 0:
-                ref = poses.reference
-                for k in range(len(scans)):
-                    if poses.placed[k]:
-                        expected = rotate(true_xy[k] - true_xy[ref], compass_err[ref])
-                        errs.append(float(np.hypot(*(poses.xy_m[k] - expected))))
+            errs = reference_frame_errors(poses, true_xy, compass_err)
             along = []
             for m in matches:
                 if m.converged and abs(m.i - m.j) == 1:
-                    expected = rotate(true_xy[m.j] - true_xy[m.i], compass_err[m.i])
+                    expected = in_compass_frame(true_xy[m.j] - true_xy[m.i], compass_err[m.i])
                     along.append(float((np.array([m.dx_m, m.dy_m]) - expected) @ expected / np.linalg.norm(expected)))
             out["results"][f"{mname}+{lname}"] = {
                 "neighbour_along_track_bias_m": float(np.mean(along)) if along else float("nan"),
@@ -270,6 +260,7 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
 
 def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
     """Median position error of ``wls`` and ``pose-graph`` on ``n`` random ray-cast galleries."""
+    from cistern_archive.evaluation import reference_frame_errors
     from cistern_archive.testing.geometry import random_gallery, stations_along
     from cistern_archive.testing.pairs import simulate_range_scan
 
@@ -300,14 +291,8 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
                     cache[(i, j)] = MatchResult(**{**r.__dict__, "i": i, "j": j})
                 matches.append(cache[(i, j)])
             poses = loc.localize(scans, matches, lp)
-            ref = poses.reference
-            errs = []
-            by_scan[lname] = {}
-            if ref >= 0:
-                for k in np.flatnonzero(poses.placed):
-                    expected = rotate(stations[k] - stations[ref], compass[ref] - yaw_true[ref])
-                    errs.append(float(np.hypot(*(poses.xy_m[k] - expected))))
-                    by_scan[lname][int(k)] = errs[-1]
+            errs = reference_frame_errors(poses, stations, compass - yaw_true)
+            by_scan[lname] = dict(zip(np.flatnonzero(poses.placed).tolist(), errs))
             errors[lname] += errs
             site[lname] = {"placed": int(poses.placed.sum()),
                            "median_position_error_m": float(np.median(errs)) if errs else float("nan")}

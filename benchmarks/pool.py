@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import statistics
 import sys
 import time
@@ -29,6 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.catalog.loader import load_record  # noqa: E402
+from cistern_archive.evaluation import in_compass_frame  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.sonar.segmentation import segment  # noqa: E402
 from cistern_archive.sonar.simulator import simulate_site  # noqa: E402
@@ -73,9 +73,7 @@ def expected_displacement(sim, i: int, j: int) -> np.ndarray:
     """Truth ``p_j - p_i`` rotated into scan i's measured-compass frame."""
     a, b = sim.scans[i], sim.scans[j]
     d = np.array([b.pose.x_m - a.pose.x_m, b.pose.y_m - a.pose.y_m])
-    err = a.scan.yaw_rad - a.pose.yaw_rad
-    c, s = math.cos(err), math.sin(err)
-    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+    return in_compass_frame(d, a.scan.yaw_rad - a.pose.yaw_rad)
 
 
 def run_seed(seed: int, spec, record, stages, params) -> dict:

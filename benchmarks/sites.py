@@ -41,14 +41,10 @@ ROOT = Path(__file__).resolve().parents[1]
 LEVEL_TOLERANCE_M = 0.25
 
 from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E402
+from cistern_archive.evaluation import in_compass_frame, reference_frame_errors  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  # noqa: E402
 from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
-
-
-def rotate(v: np.ndarray, angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
 def score_site(path: Path, catalog: Path) -> dict | None:
@@ -75,20 +71,14 @@ def score_site(path: Path, catalog: Path) -> dict | None:
 
     pairs = []
     for m in build.matches:
-        expected = rotate(true_xy[m.j] - true_xy[m.i], compass_err[m.i])
+        expected = in_compass_frame(true_xy[m.j] - true_xy[m.i], compass_err[m.i])
         err = float(np.hypot(m.dx_m - expected[0], m.dy_m - expected[1])) if m.converged else float("nan")
         neighbour = abs(m.i - m.j) == 1
         ov = overlap(m.i, m.j) if (neighbour or m.converged) else float("nan")
         pairs.append({"i": m.i, "j": m.j, "converged": m.converged, "error_m": err, "overlap": ov,
                       "neighbour": neighbour, "seconds": m.seconds})
-    position_errors = []
     poses = build.poses
-    if poses is not None and poses.reference >= 0:
-        ref = poses.reference
-        for k in range(len(scans)):
-            if poses.placed[k]:
-                expected = rotate(true_xy[k] - true_xy[ref], compass_err[ref])
-                position_errors.append(float(np.hypot(*(poses.xy_m[k] - expected))))
+    position_errors = reference_frame_errors(poses, true_xy, compass_err) if poses is not None else []
     eligible = [p for p in pairs if p["neighbour"] and p["overlap"] >= 0.5]
     good = [p for p in eligible if p["converged"] and p["error_m"] <= 0.10]
     false_conv = [p for p in pairs if p["converged"] and p["error_m"] > 0.10]

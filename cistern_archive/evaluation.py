@@ -4,12 +4,18 @@ The map frame is compass aligned, so a compass bias rotates the whole map and th
 scan translates it. Position errors are therefore measured after the least-squares rigid alignment
 (rotation + translation, Umeyama 1991 without scale) of the estimated positions onto the true ones:
 the usual absolute trajectory error of SLAM evaluations.
+
+The benchmarks also report errors without alignment, in the frame the map is drawn in: truth offsets
+rotated by the reference scan's compass error (:func:`in_compass_frame`, :func:`reference_frame_errors`).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from cistern_archive.pipeline.contracts import Poses
 from cistern_archive.pipeline.results import SiteResult
 
 
@@ -33,16 +39,54 @@ def align_rigid_2d(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, 
     return rotation, mu_t - rotation @ mu_s
 
 
+def scan_position_errors(result: SiteResult) -> dict[int, float]:
+    """Position in ``result.scans`` → distance (m) between that placed scan and its true position after
+    rigid alignment; only placed scans with truth appear, and none when fewer than two have it.
+    """
+    scans = {k: s for k, s in enumerate(result.scans)
+             if s.placed and s.truth_x_m is not None and s.x_m is not None}
+    if len(scans) < 2:
+        return {}
+    estimated = np.array([(s.x_m, s.y_m) for s in scans.values()])
+    truth = np.array([(s.truth_x_m, s.truth_y_m) for s in scans.values()])
+    rotation, translation = align_rigid_2d(estimated, truth)
+    errors = np.linalg.norm(estimated @ rotation.T + translation - truth, axis=1)
+    return {k: float(e) for k, e in zip(scans, errors)}
+
+
 def position_errors(result: SiteResult) -> np.ndarray:
     """Distance (m) between each placed scan and its true position after rigid alignment.
 
     Returns an empty array when fewer than two placed scans have truth.
     """
-    pairs = [((s.x_m, s.y_m), (s.truth_x_m, s.truth_y_m)) for s in result.scans
-             if s.placed and s.truth_x_m is not None and s.x_m is not None]
-    if len(pairs) < 2:
-        return np.zeros(0)
-    estimated = np.array([p[0] for p in pairs])
-    truth = np.array([p[1] for p in pairs])
-    rotation, translation = align_rigid_2d(estimated, truth)
-    return np.linalg.norm(estimated @ rotation.T + translation - truth, axis=1)
+    return np.array(list(scan_position_errors(result).values()), dtype=float)
+
+
+def in_compass_frame(offset_xy_m: np.ndarray, compass_error_rad: float) -> np.ndarray:
+    """A true offset (m, shape (2,)) as a scan with this compass error (measured − true yaw) sees it."""
+    c, s = math.cos(compass_error_rad), math.sin(compass_error_rad)
+    x, y = offset_xy_m
+    return np.array([c * x - s * y, s * x + c * y])
+
+
+def reference_frame_errors(poses: Poses, true_xy_m: np.ndarray, compass_error_rad: np.ndarray) -> list[float]:
+    """Distance (m) between each placed scan and its true offset from the reference scan, expressed in the
+    reference scan's compass frame (no alignment); empty when no scan is the reference.
+
+    Parameters
+    ----------
+    poses : Poses
+        The localizer's output.
+    true_xy_m : ndarray, shape (N, 2)
+        True station positions.
+    compass_error_rad : array_like, shape (N,)
+        Measured minus true yaw of every scan.
+    """
+    ref = poses.reference
+    if ref < 0:
+        return []
+    errors = []
+    for k in np.flatnonzero(poses.placed):
+        expected = in_compass_frame(true_xy_m[k] - true_xy_m[ref], compass_error_rad[ref])
+        errors.append(float(np.hypot(*(poses.xy_m[k] - expected))))
+    return errors

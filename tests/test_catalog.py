@@ -120,3 +120,10 @@ def test_the_readme_example_record_is_valid():
     record = SiteRecord.model_validate(yaml.safe_load(block))
     assert record.id == "lair-pool"
     assert record.references[0].measure.repeats == 10
+
+
+def test_a_record_that_is_not_utf8_is_a_clear_error(tmp_path):
+    write_catalog(tmp_path)
+    (tmp_path / "test-site.yaml").write_bytes(b"id: caf\xe9\n")
+    problems = validate_catalog(tmp_path).problems
+    assert_problem(problems, "test-site.yaml", 1, "(record)", "cannot be read")

@@ -232,3 +232,39 @@ def test_restarts_keep_a_good_match_and_report_failures():
     result = match(a, c, restarts=2)
     assert_not_silent(result)
     assert "restarts" in result.reason
+
+
+def test_fit_check_uses_the_shared_verdict():
+    """The point matchers' verdict (inliers, inlier share, free space) judges a verified estimate."""
+    from cistern_plugins.pf_pairwise import fit_check
+
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    truth = (B_XY[0] - A_XY[0], B_XY[1] - A_XY[1], 0.0)
+    p = PFParams()
+    check = fit_check(a, b, p)
+    assert check(truth) == ""
+    far = check((truth[0] + 3.0, truth[1] + 3.0, 0.0))
+    assert far.startswith("fit check:") and "inlier" in far
+    assert fit_check(a, b, PFParams(verify_fit=False))((truth[0] + 3.0, truth[1] + 3.0, 0.0)) == ""
+
+
+def test_partial_overlap_fit_must_respect_free_space():
+    """Below ``partial_inlier_ratio`` the free-space limit ``partial_max_violation`` applies."""
+    from cistern_plugins.pf_pairwise import fit_check
+
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    truth = (B_XY[0] - A_XY[0], B_XY[1] - A_XY[1], 0.0)
+    wrong = (truth[0] + 0.6, truth[1] - 0.4, 0.0)
+    loose = dict(min_inliers=3, min_inlier_ratio=0.0)
+    assert fit_check(a, b, PFParams(**loose, partial_inlier_ratio=0.0))(wrong) == ""
+    reason = fit_check(a, b, PFParams(**loose, partial_inlier_ratio=1.0, partial_max_violation=0.0))(wrong)
+    assert "free space" in reason
+    assert fit_check(a, b, PFParams(partial_inlier_ratio=1.0))(truth) == ""
+
+
+def test_fit_check_failure_is_reported_not_converged():
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    assert match(a, b).converged
+    result = match(a, b, min_inliers=10_000)
+    assert_not_silent(result)
+    assert result.reason.startswith("fit check: only")

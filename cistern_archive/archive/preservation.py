@@ -76,7 +76,6 @@ def write_grids(build: SiteBuild, folder: Path) -> list[Path]:
     written, rows = [], []
     for k, grid in enumerate(build.map_result.grids):
         name = f"grids/slice-{k:02d}.png"
-        (folder / "grids").mkdir(parents=True, exist_ok=True)
         written.append(write_png(folder / name, grid))
         h, w = grid.log_odds.shape
         rows.append([name, grid.depth_m, grid.origin_xy_m[0], grid.origin_xy_m[1], grid.cell_m, w, h])

@@ -73,7 +73,10 @@ def parse_yaml(path: Path) -> tuple[Any, dict[tuple[Any, ...], int]]:
     CatalogError
         With ``file:line: yaml: message`` when the YAML is malformed.
     """
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CatalogError([f"{path}:1: (record): cannot be read: {exc}"]) from None
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
@@ -101,7 +104,7 @@ def validation_problems(path: Path, error: ValidationError, lines: dict[tuple[An
     """Turn a pydantic error into ``file:line: field: message`` strings."""
     problems = []
     for item in error.errors():
-        loc = tuple(part for part in item["loc"] if part not in ("function-after[_relative(), str]",))
+        loc = tuple(item["loc"])
         message = item["msg"]
         if item["type"] == "extra_forbidden":
             message = "unknown field"

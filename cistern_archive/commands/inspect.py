@@ -77,8 +77,7 @@ def register(app: typer.Typer) -> None:
             doc = inspect_file(file, fmt)
         except ReaderError as exc:
             typer.echo(f"error: {exc}", err=True)
-            # SystemExit carries the code through ``cli.main`` (which runs click with standalone_mode=False)
-            raise SystemExit(EXIT_USAGE) from None
+            raise typer.Exit(EXIT_USAGE) from None
         if as_json:
             typer.echo(json.dumps(doc, indent=2, allow_nan=False))
         else:

@@ -13,4 +13,6 @@ export
     Deterministic PNG and ``.npz`` writers for :class:`~cistern_archive.pipeline.contracts.EvidenceGrid`.
 polygon
     Range scans ray cast inside a polygon (known geometry for tests and benchmarks).
+volume
+    Depth slices resampled onto one lattice and stacked into a 3-D volume (:func:`stack_slices`).
 """

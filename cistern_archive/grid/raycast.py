@@ -66,10 +66,6 @@ class OccupancyLookup:
         row = np.where(outside, 0, row)
         return row * self.width + col
 
-    def distance_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Distance field at points (``FAR_M`` outside the grid)."""
-        return self.distance_flat[self.flat_index(x, y)]
-
     def march(
         self, x0: np.ndarray, y0: np.ndarray, angle: np.ndarray, max_t: np.ndarray, *, step: float | None = None
     ) -> np.ndarray:

@@ -82,11 +82,11 @@ class _Timer:
 def resolve_stages(record: SiteRecord, registry: Registry) -> dict[str, Stage]:
     """Load the record's plugin for every stage and validate its parameters."""
     stages = {}
+    ties = {s.station: s.below for s in record.scans if s.below is not None}
     for stage in STAGES:
         choice = getattr(record.pipeline, stage)
         plugin = registry.load(stage, choice.plugin)
         params = dict(choice.params)
-        ties = {s.station: s.below for s in record.scans if s.below is not None}
         if stage == "localizer" and ties and "below" in plugin.params_model.model_fields:
             params.setdefault("below", ties)  # the record's vertical ties (ScanRef.below)
         stages[stage] = Stage(plugin=plugin, params=registry.check_params(stage, choice.plugin, params))

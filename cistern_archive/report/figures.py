@@ -59,10 +59,6 @@ def _figure(width_in: float, height_in: float, dpi: int, **margins: float) -> Fi
     return figure
 
 
-def _station_labels(scans: Sequence[RangeScan | Scan], n: int) -> list[str]:
-    return [scans[k].station if k < len(scans) and scans[k].station else f"scan {k}" for k in range(n)]
-
-
 def choose_slice(grids: Sequence[EvidenceGrid], depth_m: float | None) -> EvidenceGrid:
     """The slice nearest ``depth_m`` (the first when it is ``None``)."""
     if depth_m is None:

@@ -6,7 +6,7 @@ The same inputs give the same bytes:
   arrays go through Pillow with no text chunks at all.
 * NPZ: :func:`numpy.savez_compressed` stamps every zip member with the wall clock; :func:`write_npz`
   writes the zip itself with a fixed member time (1980-01-01, the earliest a zip file can hold).
-* CSV and JSON: fixed float formatting, ``\\n`` line endings, sorted where order is not meaningful.
+* CSV: fixed float formatting, ``\\n`` line endings, sorted where order is not meaningful.
 * Build time: only from ``SOURCE_DATE_EPOCH`` (https://reproducible-builds.org/specs/source-date-epoch/).
 """
 
@@ -14,20 +14,17 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
-import io
-import json
 import math
 import os
 import re
 import unicodedata
-import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+from cistern_archive.grid.export import npz_bytes
 
 
 def build_time_from_env(environ: Mapping[str, str] | None = None) -> dt.datetime | None:
@@ -95,16 +92,10 @@ def save_figure(figure: Any, path: Path, *, dpi: int) -> Path:
 def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> Path:
     """A compressed ``.npz`` readable by :func:`numpy.load`, identical for identical arrays.
 
-    Members are written in sorted name order with a fixed timestamp and fixed permissions.
+    Members are written in sorted name order with a fixed timestamp and fixed permissions
+    (:func:`cistern_archive.grid.export.npz_bytes`).
     """
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as archive:
-        for name in sorted(arrays):
-            buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.asarray(arrays[name]), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_EPOCH)
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = 0o644 << 16
-            archive.writestr(info, buffer.getvalue(), compresslevel=6)
+    path.write_bytes(npz_bytes(dict(arrays)))
     return path
 
 
@@ -128,10 +119,4 @@ def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) 
         writer.writerow(header)
         for row in rows:
             writer.writerow([cell(value) for value in row])
-    return path
-
-
-def write_json(path: Path, data: Any) -> Path:
-    """Indented, key-sorted JSON with a final newline."""
-    path.write_text(json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n", encoding="utf-8")
     return path

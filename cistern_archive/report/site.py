@@ -19,6 +19,7 @@ import numpy as np
 
 from cistern_archive import __version__
 from cistern_archive.errors import CisternError
+from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.grid.volume import stack_slices
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.report import figures as fig
@@ -312,13 +313,12 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
               "figure": (p.i, p.j) in pair_anchor, "anchor": pair_anchor.get((p.i, p.j), "")}
              for p in sorted(result.pairs, key=lambda p: (p.i, p.j))]
     has_truth = any(s.truth_x_m is not None for s in result.scans)
+    errors = scan_position_errors(result)
     placed = []
-    for s in result.scans:
+    for k, s in enumerate(result.scans):
         if not s.placed:
             continue
-        error = None
-        if has_truth and None not in (s.truth_x_m, s.truth_y_m, s.x_m, s.y_m):
-            error = math.hypot(s.x_m - s.truth_x_m, s.y_m - s.truth_y_m)
+        error = errors.get(k)
         placed.append({"id": s.id, "file": s.file, "x": signed(s.x_m), "y": signed(s.y_m),
                        "sx": number(s.sigma_x_m), "sy": number(s.sigma_y_m),
                        "heading": number(compass_deg_from_yaw(s.yaw_rad), 1), "depth": number(s.depth_m, 2),

@@ -3,7 +3,8 @@ atomic publication, ``summary.json`` and the run log.
 
 Public API
 ----------
-rebuild(catalog, out, *, sites, workers, force, scheduler, scheduler_file, archive, progress) -> RebuildSummary
+rebuild(catalog, out, *, sites, workers, force, scheduler, scheduler_file, archive, progress, registry,
+        report_config) -> RebuildSummary
     Rebuild a catalog's reports incrementally (see :mod:`cistern_archive.service.rebuild`).
 RebuildSummary, SiteOutcome
     What ``OUT/summary.json`` holds.

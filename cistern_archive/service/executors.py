@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 from cistern_archive.errors import CisternError
 
@@ -22,17 +22,6 @@ SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 THREAD_LIMITS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
                  "VECLIB_MAXIMUM_THREADS", "NUMEXPR_MAX_THREADS", "VTK_SMP_MAX_THREADS")
 MAX_ATTEMPTS = 2
-
-
-class Executor(Protocol):
-    name: str
-    workers: int
-
-    def run(self, func: Callable[[T], Any], tasks: Sequence[T]) -> Iterator[tuple[T, Any]]:  # pragma: no cover
-        ...
-
-    def close(self) -> None:  # pragma: no cover
-        ...
 
 
 class WorkerDied(RuntimeError):

@@ -34,8 +34,8 @@ def polar_to_cartesian(
     pixels : int
         Side of the output image.
     beam_width_rad : float, optional
-        Pixels farther than this from every beam (half the largest bearing gap by default, for sector
-        scans) are left empty.
+        Pixels farther than this from every beam (the median bearing step by default, so the gap
+        outside a sector scan stays empty) are left empty.
 
     Returns
     -------

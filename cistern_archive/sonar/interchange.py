@@ -13,12 +13,14 @@ name                dtype / shape             meaning
 ``metadata`` keys: ``schema`` (``"cistern-archive/scan"``), ``schema_version`` (1), ``full_scale``,
 ``bin_size_m``, ``start_range_m``, ``yaw_rad``, ``depth_m``, ``timestamp`` (Unix seconds or null),
 ``sonar_model``, ``beam_width_rad``, ``station``, ``settings`` (object). Floats are written with
-``repr`` precision, so a round trip is exact. Files are written uncompressed-but-zipped
-(``np.savez_compressed``) to a temporary sibling and renamed into place.
+``repr`` precision, so a round trip is exact. Files are zip-deflated like ``np.savez_compressed`` output,
+but with fixed member timestamps so equal scans give equal bytes; they are written to a temporary
+sibling and renamed into place.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -79,8 +81,6 @@ def write_scan(scan: Scan, path: str | os.PathLike) -> Path:
 
 def _write_npz_deterministic(handle, arrays: dict[str, np.ndarray]) -> None:
     """Like ``np.savez_compressed`` but with fixed zip timestamps, so equal scans give equal bytes."""
-    import io
-
     with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED) as archive:
         for name, array in arrays.items():
             buffer = io.BytesIO()
@@ -107,8 +107,6 @@ def read_scan(path: str | os.PathLike) -> Scan:
             bearings = data["bearings_rad"]
             intensities = data["intensities"]
             meta_bytes = data["metadata"].tobytes()
-    except ReaderError:
-        raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise ReaderError(str(path), f"unreadable .npz: {exc}") from None
     try:

@@ -265,8 +265,8 @@ def segment_intensities(scan: Scan, settings: SegmentationSettings | None = None
     peaks = peak_bins(scan, settings)
     out = np.zeros(scan.intensities.shape, dtype=np.uint8)
     n_bins = scan.n_bins
+    beams = np.flatnonzero(peaks >= 0)
     for offset in (-1, 0, 1):
-        beams = np.flatnonzero(peaks >= 0)
         idx = peaks[beams] + offset
         keep = (idx >= 0) & (idx < n_bins)
         out[beams[keep], idx[keep]] = 255

@@ -106,28 +106,27 @@ def beam_bearings(sonar: SonarSpec) -> np.ndarray:
     return np.asarray(wrap_angle(-np.arange(n_beams) * math.radians(360.0 / n_beams)))
 
 
-def _pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-ray angular offsets (rad) and their two-way Gaussian pattern weights (summing to 1).
+def _lobe(width_deg: float, rays: int, span: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ray offsets (rad) across ``+-span x width`` and their two-way Gaussian weights (summing to 1).
 
-    ``beam_width_deg`` is the one-way -3 dB width; the two-way pattern is the one-way pattern squared.
+    ``width_deg`` is the one-way -3 dB width; the two-way pattern is the one-way pattern squared.
     """
-    width = math.radians(sonar.beam_width_deg)
-    if sonar.sub_rays == 1:
+    width = math.radians(width_deg)
+    if rays == 1:
         return np.zeros(1), np.ones(1)
-    offsets = np.linspace(-width, width, sonar.sub_rays)
+    offsets = np.linspace(-span * width, span * width, rays)
     weights = np.exp(-8.0 * math.log(2.0) * (offsets / width) ** 2)
     return offsets, weights / weights.sum()
+
+
+def _pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-ray angular offsets (rad) and weights across the horizontal lobe (``beam_width_deg``)."""
+    return _lobe(sonar.beam_width_deg, sonar.sub_rays, 1.0)
 
 
 def _vertical_pattern(sonar: SonarSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Elevation offsets (rad) and two-way Gaussian weights (summing to 1) across the vertical lobe
-    (``vertical_beam_width_deg`` one-way -3 dB, squared for two ways)."""
-    width = math.radians(sonar.vertical_beam_width_deg)
-    if sonar.vertical_rays == 1:
-        return np.zeros(1), np.ones(1)
-    offsets = np.linspace(-0.75 * width, 0.75 * width, sonar.vertical_rays)
-    weights = np.exp(-8.0 * math.log(2.0) * (offsets / width) ** 2)
-    return offsets, weights / weights.sum()
+    """Elevation offsets (rad) and weights across the vertical lobe (``vertical_beam_width_deg``)."""
+    return _lobe(sonar.vertical_beam_width_deg, sonar.vertical_rays, 0.75)
 
 
 DEPTH_STEP_M = 0.05
@@ -398,15 +397,16 @@ def simulate_site(spec: SimulationSpec, *, effects: EffectsSpec | None = None) -
     """
     effects = spec.effects if effects is None else effects
     start = spec.start_time.timestamp()
+    slices = spec.site.slices()
     scans = []
     for k, pose in enumerate(station_poses(spec)):
-        rings = interpolate_slice(spec.site.slices(), pose.depth_m)
+        rings = interpolate_slice(slices, pose.depth_m)
         roughness = spec.site.wall_roughness(pose.depth_m, effects.wall_roughness)
         walls = effects if roughness == effects.wall_roughness else effects.model_copy(
             update={"wall_roughness": roughness})
         scans.append(simulate_scan(
             rings, pose, spec.sonar, walls, station_rng(spec.seed, 1, k),
             timestamp=start + k * spec.seconds_per_station, water_depth_m=spec.site.water_depth_m,
-            levels=spec.site.slices() if len(spec.site.levels) > 1 else None,
+            levels=slices if len(spec.site.levels) > 1 else None,
         ))
     return SimulatedSite(spec=spec, scans=scans)

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from cistern_archive.catalog.loader import parse_yaml, validation_problems
@@ -329,8 +328,3 @@ def load_spec(path: str | Path) -> SimulationSpec:
         return SimulationSpec.model_validate(data)
     except ValidationError as exc:
         raise CatalogError(validation_problems(path, exc, lines)) from None
-
-
-def dump_spec(spec: SimulationSpec) -> str:
-    """The spec as YAML (defaults included)."""
-    return yaml.safe_dump(spec.model_dump(mode="json"), sort_keys=False)

@@ -60,8 +60,9 @@ def plan_route(route: RouteSpec, spec: SimulationSpec, rng: np.random.Generator)
     poses: list[TruePose] = []
     for level, depth in enumerate(route.depths):
         rings = interpolate_slice(spec.site.slices(), depth)
-        if not contains(rings, points).all():
-            bad = points[~contains(rings, points)][0]
+        inside = contains(rings, points)
+        if not inside.all():
+            bad = points[~inside][0]
             raise ValueError(f"route of {spec.id!r} leaves the water at depth {depth} m near {bad.tolist()}")
         chosen = [0]
         while chosen[-1] < len(points) - 1:
@@ -88,8 +89,9 @@ def station_poses(spec: SimulationSpec) -> list[TruePose]:
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
         raise ValueError(f"spec {spec.id!r}: station names {duplicates} appear twice")
+    slices = spec.site.slices()
     for pose in poses:
-        rings = interpolate_slice(spec.site.slices(), pose.depth_m)
+        rings = interpolate_slice(slices, pose.depth_m)
         if not contains(rings, np.array([[pose.x_m, pose.y_m]]))[0]:
             raise ValueError(f"spec {spec.id!r}: station {pose.station!r} is not in the water")
     return poses

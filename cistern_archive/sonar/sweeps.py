@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.sonar.scan import Scan, wrap_angle
 
 TWO_PI = 2.0 * math.pi
 
@@ -47,10 +47,6 @@ class Beam:
     intensities: np.ndarray
     timestamp: float = float("nan")
     key: Hashable = None
-
-
-def _wrap(delta: float) -> float:
-    return (delta + math.pi) % TWO_PI - math.pi
 
 
 MAX_STEP_RAD = math.radians(45.0)
@@ -78,7 +74,7 @@ def split_sweeps(bearings_rad: Sequence[float] | np.ndarray, keys: Sequence[Hash
     n = b.shape[0]
     if n == 0:
         return []
-    steps = (np.diff(b) + math.pi) % TWO_PI - math.pi
+    steps = wrap_angle(np.diff(b))
     cuts = [0]
     direction = 0.0
     turned = 0.0

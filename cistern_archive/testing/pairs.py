@@ -64,10 +64,6 @@ class SimulatedPair:
         """Initial translation offset a matcher starting from zero must overcome."""
         return math.hypot(self.dx_m, self.dy_m)
 
-    @property
-    def yaw_offset_deg(self) -> float:
-        return abs(math.degrees(self.dyaw_rad))
-
 
 def simulate_range_scan(env: Environment, position: np.ndarray, yaw_rad: float, *, compass_yaw_rad: float,
                         n_beams: int, max_range_m: float, noise_m: float, outlier_fraction: float,

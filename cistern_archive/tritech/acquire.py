@@ -319,7 +319,7 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
     if capture.complete and capture.missing:
         notes.append(f"{capture.missing} bearing(s) missing, accepted (--accept-gaps)")
     if not capture.complete:
-        notes.append(f"partial scan ({capture.missing} of {ScanAssembler(settings.step).n_slots} bearings "
+        notes.append(f"partial scan ({capture.missing} of {settings.beams_per_revolution()} bearings "
                      f"missing) recorded as station {label!r}")
     if use_archive:
         try:

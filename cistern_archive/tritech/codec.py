@@ -21,7 +21,7 @@ skips one byte past the bad ``@`` and searches again (§1.3 rule 7), so the next
 
 Public API
 ----------
-* :class:`MessageType` — message type IDs (§2); module constants ``MT_*`` alias them.
+* :class:`MessageType` — message type IDs (§2).
 * :class:`Packet` — one decoded frame, with its byte offset in the stream.
 * :func:`encode_packet` / :meth:`Packet.to_bytes` — build a frame.
 * :func:`decode_packet` — strict decode of exactly one frame from a buffer.
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -123,21 +123,6 @@ class MessageType(IntEnum):
     FPGA_CAL_DATA = 63
     STOP_ALIVES = 66
     RESET_TO_DEFAULTS = 70
-
-
-MT_VERSION_DATA = MessageType.VERSION_DATA
-MT_HEAD_DATA = MessageType.HEAD_DATA
-MT_ALIVE = MessageType.ALIVE
-MT_BB_USER_DATA = MessageType.BB_USER_DATA
-MT_AUX_DATA = MessageType.AUX_DATA
-MT_REBOOT = MessageType.REBOOT
-MT_HEAD_COMMAND = MessageType.HEAD_COMMAND
-MT_SEND_VERSION = MessageType.SEND_VERSION
-MT_SEND_BB_USER = MessageType.SEND_BB_USER
-MT_SEND_DATA = MessageType.SEND_DATA
-MT_FPGA_VERSION_DATA = MessageType.FPGA_VERSION_DATA
-MT_FPGA_CAL_DATA = MessageType.FPGA_CAL_DATA
-MT_STOP_ALIVES = MessageType.STOP_ALIVES
 
 
 class PacketError(CisternError):
@@ -806,10 +791,3 @@ def ad_interval_for(range_m: float, n_bins: int, speed_of_sound: float = DEFAULT
     if range_m <= 0 or n_bins <= 0 or not math.isfinite(range_m):
         raise ValueError(f"range {range_m} m and bins {n_bins} must be positive")
     return max(5, int(round(2.0 * range_m / n_bins / speed_of_sound / ADINTERVAL_S)))
-
-
-def head_data_lines(packets: Iterable[Packet], **kwargs) -> Iterator[HeadData]:
-    """Decode the ``mtHeadData`` packets of a packet sequence (others are skipped)."""
-    for packet in packets:
-        if packet.type == MessageType.HEAD_DATA:
-            yield decode_head_data(packet, **kwargs)

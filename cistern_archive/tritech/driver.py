@@ -33,15 +33,15 @@ import numpy as np
 import serial
 
 from cistern_archive.errors import CisternError
-from cistern_archive.sonar.scan import Scan, wrap_angle
+from cistern_archive.sonar.scan import Scan
 from cistern_archive.tritech.codec import (
+    DEFAULT_SPEED_OF_SOUND,
     STEPS_PER_REV,
     HeadData,
     MessageType,
     Packet,
     PacketError,
     StreamDecoder,
-    bearing_to_rad,
     decode_head_data,
 )
 from cistern_archive.tritech.messages import (
@@ -333,7 +333,7 @@ class MicronDriver:
         self._wait_for(MessageType.ALIVE, self.config.config_timeout_s,
                        what="mtAlive reporting 'params received' after mtHeadCommand",
                        resend=self._send(cmd), resend_every_s=1.0,
-                       accept=lambda p: _alive_has_params(p))
+                       accept=_alive_has_params)
         self._lost_params = False
 
     def reboot(self) -> None:
@@ -489,7 +489,7 @@ class ScanAssembler:
     """
 
     step: int
-    speed_of_sound: float = 1500.0
+    speed_of_sound: float = DEFAULT_SPEED_OF_SOUND
     lines: dict[int, HeadData] = field(default_factory=dict)
     received: int = 0
     refused: int = 0
@@ -527,8 +527,9 @@ class ScanAssembler:
               extra: dict | None = None) -> Scan | None:
         """The :class:`Scan` so far (None before the first line), beams in scan order from the first line.
 
-        Bearings are converted with :func:`~cistern_archive.tritech.codec.bearing_to_rad` (mirrored for an
-        inverted head); the bin size comes from the echoed ADInterval (§7.4).
+        Bearings are converted with :meth:`~cistern_archive.tritech.codec.HeadData.bearing_rad` (mirrored
+        for an inverted head, the rule the SeaNet file readers use); the bin size comes from the echoed
+        ADInterval (§7.4).
         """
         first = self.first
         if first is None:
@@ -537,9 +538,7 @@ class ScanAssembler:
         slot0 = int(round(first.bearing / self.step)) % self.n_slots
         order = sorted(self.lines, key=lambda s: (sign * (s - slot0)) % self.n_slots)
         chosen = [self.lines[s] for s in order]
-        bearings = np.asarray(bearing_to_rad(np.array([line.bearing for line in chosen])), dtype=np.float64)
-        if first.inverted:
-            bearings = np.asarray(wrap_angle(-bearings), dtype=np.float64)
+        bearings = np.array([line.bearing_rad() for line in chosen], dtype=np.float64)
         intensities = np.stack([line.bins for line in chosen]).astype(np.uint8)
         settings = dict(first.settings())
         settings.update({"partial": not self.complete, "missing_beams": self.missing,

@@ -36,7 +36,7 @@ from cistern_archive.sonar.simulator import TruePose, simulate_scan, station_pos
 from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec, load_spec
 from cistern_archive.tritech.acquire import find_site
 from cistern_archive.tritech.codec import (
-    HDCTRL_INVERT,
+    DEFAULT_SPEED_OF_SOUND,
     HDCTRL_STARELLIM,
     STEPS_PER_REV,
     MessageType,
@@ -140,7 +140,8 @@ class SimulatedEcho:
         rings = interpolate_slice(spec.site.slices(), chosen.depth_m)
         return cls(rings, chosen, spec.sonar, spec.effects, spec.site.water_depth_m)
 
-    def revolution(self, cmd: HeadCommand, rng: np.random.Generator, speed_of_sound: float = 1500.0) -> np.ndarray:
+    def revolution(self, cmd: HeadCommand, rng: np.random.Generator,
+                   speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> np.ndarray:
         """Intensities (0..255) of one revolution for the head's settings.
 
         Row ``k`` is the beam ``k x step`` clockwise from ahead (bearing ``3200 + k x step``), as
@@ -290,7 +291,8 @@ class HeadTiming:
     boot: float = 1.5
     realtime: bool = True
 
-    def line_delay(self, cmd: HeadCommand, line_bytes: int, speed_of_sound: float = 1500.0) -> float:
+    def line_delay(self, cmd: HeadCommand, line_bytes: int,
+                   speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> float:
         """Two-way time to the end of the line plus the line's serial time (8N1 at 115200 baud)."""
         if not self.realtime:
             return 0.0
@@ -364,10 +366,6 @@ class EmulatedHead:
     def alive(self, now: float) -> bytes:
         ms = int((now - self.booted_at) * 1000.0)
         return Alive(0 if self.cmd is not None else 1, ms, self.bearing, self.head_inf()).encode(node=self.node)
-
-    @property
-    def stalled(self) -> bool:
-        return self.stalled_until is not None
 
     # events --------------------------------------------------------------------------------------
 
@@ -456,7 +454,7 @@ class EmulatedHead:
             self._table = self.echo.revolution(cmd, self.rng)
             self._table_lines = 0
         offset = (self.bearing - AHEAD) % STEPS_PER_REV
-        if cmd.hd_ctrl & HDCTRL_INVERT:  # invert: the head turns the other way seen from above
+        if cmd.inverted:  # the head turns the other way seen from above
             offset = (-offset) % STEPS_PER_REV
         row = int(round(offset / (STEPS_PER_REV / self._table.shape[0]))) % self._table.shape[0]
         values = self._table[row]

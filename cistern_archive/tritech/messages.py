@@ -55,6 +55,7 @@ from cistern_archive.tritech.codec import (
     MessageType,
     Packet,
     PacketError,
+    _type_name,
     ad_interval_for,
     decode_head_data,
     encode_packet,
@@ -89,8 +90,7 @@ DEVICE_TYPE_DST = 0x11
 def _expect(packet: Packet, msg_type: MessageType, size: int | None = None, at_least: int | None = None) -> bytes:
     """The payload of ``packet`` after checking its type and length; PacketError names the offset."""
     if packet.type != msg_type:
-        wanted = Packet(sid=0, did=0, type=int(msg_type), seq=0, node=0, payload=b"").type_name
-        raise PacketError(f"expected {wanted}, got {packet.type_name}", packet.offset)
+        raise PacketError(f"expected {_type_name(msg_type)}, got {packet.type_name}", packet.offset)
     payload = packet.payload
     if size is not None and len(payload) != size:
         raise PacketError(f"{packet.type_name} payload is {len(payload)} bytes, expected {size}", packet.offset)
@@ -584,7 +584,7 @@ def settings_from_command(cmd: HeadCommand, speed_of_sound: float = DEFAULT_SPEE
         range_m=max(range_m, 0.01), n_bins=max(2, cmd.n_bins), gain=min(1.0, cmd.igain[0] / IGAIN_MAX),
         step=step, continuous=cmd.continuous, left_limit=cmd.left_limit % STEPS_PER_REV,
         right_limit=cmd.right_limit % STEPS_PER_REV, direction="right" if cmd.scan_right else "left",
-        bits=8 if cmd.adc8on else 4, inverted=bool(cmd.hd_ctrl & HDCTRL_INVERT), speed_of_sound=speed_of_sound,
+        bits=8 if cmd.adc8on else 4, inverted=cmd.inverted, speed_of_sound=speed_of_sound,
         ad_span=max(1, cmd.ad_span), ad_low=cmd.ad_low,
     )
 

@@ -96,18 +96,6 @@ def estimate_normals(points: np.ndarray, tree: cKDTree, k: int = 6) -> np.ndarra
     return vecs[:, :, 0]
 
 
-def robust_weights(residuals: np.ndarray, kind: str, scale: float) -> np.ndarray:
-    """IRLS weights of a robust loss: ``huber``, ``cauchy`` or ``truncated`` (Huber 1981)."""
-    r = np.abs(residuals)
-    if kind == "huber":
-        return np.where(r <= scale, 1.0, scale / np.maximum(r, 1e-12))
-    if kind == "cauchy":
-        return 1.0 / (1.0 + (r / scale) ** 2)
-    if kind == "truncated":
-        return (r <= scale).astype(np.float64)
-    raise ValueError(f"unknown robust loss {kind!r}")
-
-
 def robust_error(distances: np.ndarray, kind: str, scale: float) -> np.ndarray:
     """Robust per-point error rho(d) for ``truncated`` (min(d, c)^2) or ``huber``, along the last axis."""
     if kind == "truncated":

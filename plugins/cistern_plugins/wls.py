@@ -115,7 +115,7 @@ class WLSLocalizer:
             else:
                 _global(ref, edges, xy, yaw_corr, placed)
         yaw = np.array([s.yaw_rad for s in scans]) + np.where(placed, yaw_corr, 0.0)
-        why = tuple("" if placed[k] else _unplaced_reason(k, ref, n, reasons, edges) for k in range(n))
+        why = tuple("" if placed[k] else _unplaced_reason(k, ref, reasons) for k in range(n))
         return Poses(xy_m=xy, yaw_rad=yaw, placed=placed, reasons=why, reference=ref)
 
 
@@ -262,7 +262,7 @@ def _pair_reasons(matches: Sequence[MatchResult]) -> dict[tuple[int, int], str]:
     return {(m.i, m.j): (m.reason or "not converged") for m in matches if not m.converged}
 
 
-def _unplaced_reason(k: int, ref: int, n: int, reasons: dict[tuple[int, int], str], edges: dict) -> str:
+def _unplaced_reason(k: int, ref: int, reasons: dict[tuple[int, int], str]) -> str:
     if ref < 0:
         return "no pair of scans converged, so there is no reference scan"
     failed = [

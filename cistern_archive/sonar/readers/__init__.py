@@ -56,6 +56,14 @@ def register_reader(name: str, suffixes: tuple[str, ...], description: str = "",
     return decorate
 
 
+def read_bytes(path: Path) -> bytes:
+    """The whole file, or a :class:`ReaderError` naming it when it cannot be read."""
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise ReaderError(str(path), f"cannot read: {exc.strerror or exc}") from exc
+
+
 def detect_format(path: Path) -> str:
     """Pick a reader by the file's suffix (or name pattern)."""
     _load_builtin_readers()
@@ -94,11 +102,4 @@ def _load_builtin_readers() -> None:
     if _loaded:
         return
     _loaded = True
-    from cistern_archive.sonar.readers import npz  # noqa: F401  (registers itself)
-
-    for module in ("seanet", "ping360", "pcd"):
-        try:
-            __import__(f"cistern_archive.sonar.readers.{module}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"cistern_archive.sonar.readers.{module}":
-                raise
+    from cistern_archive.sonar.readers import npz, pcd, ping360, seanet  # noqa: F401  (each registers itself)

@@ -25,7 +25,7 @@ import numpy as np
 
 from cistern_archive.errors import ReaderError
 from cistern_archive.sonar import marina
-from cistern_archive.sonar.readers import ReadResult, register_reader
+from cistern_archive.sonar.readers import ReadResult, read_bytes, register_reader
 from cistern_archive.sonar.scan import Scan, yaw_from_compass_deg
 
 BEAMS = 200
@@ -52,9 +52,7 @@ def _parse_header(lines: list[str], path: Path) -> tuple[dict[str, list[str]], i
 def read_points(path: Path) -> tuple[np.ndarray, list[str]]:
     """The (N, 2) x, y points of an ASCII PCD with fields x y z, plus warnings naming bad lines."""
     try:
-        text = path.read_bytes().decode("ascii")
-    except OSError as exc:
-        raise ReaderError(str(path), f"cannot read: {exc.strerror or exc}") from exc
+        text = read_bytes(path).decode("ascii")
     except UnicodeDecodeError as exc:
         raise ReaderError(str(path), "not an ASCII PCD file (binary data)", offset=exc.start) from exc
     lines = text.splitlines()

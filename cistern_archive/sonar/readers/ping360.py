@@ -46,7 +46,8 @@ from pathlib import Path
 import numpy as np
 
 from cistern_archive.errors import ReaderError
-from cistern_archive.sonar.readers import ReadResult, register_reader
+from cistern_archive.sonar.readers import ReadResult, read_bytes, register_reader
+from cistern_archive.sonar.scan import wrap_angle
 from cistern_archive.sonar.sweeps import Beam, ScanTemplate, beams_to_scans
 
 MAGIC = "PingViewer sensor log file"
@@ -291,10 +292,7 @@ def _sniff(path: Path) -> bool:
 @register_reader("ping360", (".bin",), "Blue Robotics Ping Viewer log of a Ping360", sniff=_sniff)
 def read_ping360(path: Path) -> ReadResult:
     """Read a Ping Viewer log; every device_data beam, split into sweeps (layout in the module docstring)."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ReaderError(str(path), f"cannot read: {exc.strerror or exc}") from exc
+    data = read_bytes(path)
     pos, info = _parse_header(data, path)
     warnings: list[tuple[int, str]] = []  # (file offset, text)
     chunks = _read_chunks(data, pos, path, warnings)
@@ -316,8 +314,7 @@ def read_ping360(path: Path) -> ReadResult:
                                           f"{result}"))
             continue
         fields, samples = result
-        theta = -(fields["angle"] - ANGLE_AHEAD) * 2.0 * math.pi / GRADIANS
-        theta = (theta + math.pi) % (2.0 * math.pi) - math.pi
+        theta = wrap_angle(-(fields["angle"] - ANGLE_AHEAD) * 2.0 * math.pi / GRADIANS)
         key = (samples.size, fields["sample_period"], fields["gain_setting"], fields["transmit_frequency"])
         beam = Beam(bearing_rad=theta, intensities=samples, timestamp=t0 + chunks.elapsed[record], key=key)
         fields_of[id(beam)] = fields

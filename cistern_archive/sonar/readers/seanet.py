@@ -38,7 +38,7 @@ import bisect
 import math
 import re
 import struct
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from cistern_archive.errors import ReaderError
-from cistern_archive.sonar.readers import ReadResult, register_reader
+from cistern_archive.sonar.readers import ReadResult, read_bytes, register_reader
 from cistern_archive.sonar.scan import yaw_from_compass_deg
 from cistern_archive.sonar.sweeps import Beam, ScanTemplate, beams_to_scans
 from cistern_archive.tritech.codec import (
@@ -180,13 +180,6 @@ def _warn_discards(col: _Collector, decoder: StreamDecoder) -> None:
         col.warn(d.offset, f"skipped {d.length} byte(s) that are not a valid SeaNet packet: {d.reason}")
 
 
-def _read_bytes(path: Path) -> bytes:
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise ReaderError(str(path), f"cannot read: {exc.strerror or exc}") from exc
-
-
 # --------------------------------------------------------------------------------------------------
 # Raw packet stream
 # --------------------------------------------------------------------------------------------------
@@ -221,7 +214,7 @@ def decode_seanet_stream(data: bytes, path: Path, where: Callable[[int], str] | 
                  sniff=_sniff_raw)
 def read_seanet_raw(path: Path) -> ReadResult:
     """Read a raw SeaNet capture: every ``mtHeadData`` of the stream, split into sweeps."""
-    data = _read_bytes(path)
+    data = read_bytes(path)
     if not data:
         raise ReaderError(str(path), "empty file", offset=0)
     return _finish("seanet-raw", path, decode_seanet_stream(data, path))
@@ -249,7 +242,7 @@ def _v4_index(data: bytes, start: int, stop: int, limit: int) -> list[int]:
 @register_reader("seanet-v4log", (".v4log",), "Tritech SeaNet Pro V4LOG")
 def read_v4log(path: Path) -> ReadResult:
     """Read a SeaNet Pro V4LOG file (layout in the module docstring)."""
-    data = _read_bytes(path)
+    data = read_bytes(path)
     if not data.startswith(V4LOG_MAGIC):
         raise ReaderError(str(path), f"not a V4LOG file: expected magic {V4LOG_MAGIC!r}", offset=0)
     if len(data) < 32 + _V4_HEADER.size:
@@ -365,7 +358,7 @@ def parse_rov_sentence(text: str) -> tuple[float, float] | None:
                  sniff=_sniff_udphub)
 def read_udphub(path: Path) -> ReadResult:
     """Read a ``UdpHubLog_*.csv``: port-4002 SeaNet stream plus port-13102 ``$ROV`` navigation."""
-    raw = _read_bytes(path)
+    raw = read_bytes(path)
     text = raw.decode("ascii", errors="replace")
     stream = bytearray()
     starts: list[int] = []  # stream offset where each sonar line's bytes begin
@@ -413,9 +406,3 @@ def read_udphub(path: Path) -> ReadResult:
         col.note(offset - 1, text)
     nav.sort(key=lambda f: f.time)
     return _finish("seanet-udphub", path, col, nav)
-
-
-def iter_head_data(path: Path) -> Iterable[HeadData]:
-    """Every decodable ``mtHeadData`` of a raw SeaNet capture, in order (for tools and benchmarks)."""
-    col = decode_seanet_stream(_read_bytes(path), path)
-    return list(col.heads)
