@@ -33,6 +33,7 @@ import math
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -41,14 +42,24 @@ ROOT = Path(__file__).resolve().parents[1]
 LEVEL_TOLERANCE_M = 0.25
 
 from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E402
-from cistern_archive.evaluation import in_compass_frame, reference_frame_errors  # noqa: E402
+from cistern_archive.evaluation import in_compass_frame, position_errors as aligned_errors  # noqa: E402
+from cistern_archive.evaluation import reference_frame_errors  # noqa: E402
+from cistern_archive.catalog.models import StageChoice  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  # noqa: E402
 from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
 
 
-def score_site(path: Path, catalog: Path) -> dict | None:
-    loaded = load_record(path, catalog)
+def with_localizer(loaded, localizer: str | None):
+    """The record with another localizer plugin (default parameters), or unchanged."""
+    if localizer is None:
+        return loaded
+    pipeline = loaded.record.pipeline.model_copy(update={"localizer": StageChoice(plugin=localizer)})
+    return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))
+
+
+def score_site(path: Path, catalog: Path, localizer: str | None = None) -> dict | None:
+    loaded = with_localizer(load_record(path, catalog), localizer)
     record = loaded.record
     if not record.truth:
         return None
@@ -79,6 +90,7 @@ def score_site(path: Path, catalog: Path) -> dict | None:
                       "neighbour": neighbour, "seconds": m.seconds})
     poses = build.poses
     position_errors = reference_frame_errors(poses, true_xy, compass_err) if poses is not None else []
+    aligned = aligned_errors(build.result)
     eligible = [p for p in pairs if p["neighbour"] and p["overlap"] >= 0.5]
     good = [p for p in eligible if p["converged"] and p["error_m"] <= 0.10]
     false_conv = [p for p in pairs if p["converged"] and p["error_m"] > 0.10]
@@ -90,6 +102,8 @@ def score_site(path: Path, catalog: Path) -> dict | None:
         "placed": int(poses.placed.sum()) if poses is not None else 0,
         "median_position_error_m": statistics.median(position_errors) if position_errors else float("nan"),
         "max_position_error_m": max(position_errors) if position_errors else float("nan"),
+        "median_aligned_error_m": float(np.median(aligned)) if len(aligned) else float("nan"),
+        "max_aligned_error_m": float(np.max(aligned)) if len(aligned) else float("nan"),
         "eligible_pairs": len(eligible),
         "eligible_pairs_ok": len(good),
         "pairs": len(pairs),
@@ -109,12 +123,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--catalog", type=Path, default=ROOT / "catalog")
     parser.add_argument("--site", action="append", default=[], help="only these site ids")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    parser.add_argument("--localizer", help="use this localizer plugin instead of the records' own")
     args = parser.parse_args(argv)
     rows = []
     for path in record_paths(args.catalog):
         if args.site and path.stem not in args.site:
             continue
-        row = score_site(path, args.catalog)
+        row = score_site(path, args.catalog, args.localizer)
         if row is not None:
             rows.append(row)
     print(f"{'site':16s} {'placed':>8s} {'pos err med/max (m)':>20s} {'pairs>=50% ok':>14s} "
