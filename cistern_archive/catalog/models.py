@@ -70,12 +70,6 @@ class Segmentation(Strict):
     method: Literal["paper", "cfar"] = "paper"
     threshold: float = Field(default=50.0, ge=0, le=255)
     min_range_m: float = Field(default=0.0, ge=0)
-    beam_width_correction: float | None = Field(
-        default=None, ge=0, le=1,
-        description="move each echo's bearing toward the local wall normal by up to this fraction of half "
-        "the beam width, to where a wall at that orientation is first hit (None or 0: off; "
-        "cistern_archive.sonar.segmentation.correct_beam_width)",
-    )
 
 
 class ScanRef(Strict):

@@ -89,11 +89,12 @@ decimetres to metres off). Closer stations do not cure this; features in range d
 leading edge of a smear whose range depends on the distance to the wall, so two scans of one depth
 see slightly different outlines and their matches are biased by 0.1–0.3 m. On the demo
 ``water-gallery`` (rough walls echoing at grazing incidence) converged neighbour matches are about 4 cm
-short per 2 m step. The bias is in the segmented outlines, not in the filter: the mean per-beam weight
+short per 2 m step. The bias is not in the filter's dynamics: the mean per-beam weight
 at the true heading, scanned along the tunnel, peaks as far short (−3.9 cm on average over the 18
 neighbour pairs; −2.9 to −5.3 cm with the ray-cast model and every ``map_occupied`` or
 ``unknown_score``), and a plain truncated point-to-point fit of the two scans' echo points peaks 3.5 cm
-short. Lengthening every echo range by 2–4 cm removes a quarter to a third of it; a σc of 0.05 m instead
+short (such a fit is itself slightly biased short in a narrow tunnel, so part of the bias may come from
+the geometry of the matching rather than from the echoes). Lengthening every echo range by 2–4 cm removes a quarter to a third of it; a σc of 0.05 m instead
 of 2 r_c about half, but then too few pairs converge to chain the gallery.
 """
 
