@@ -32,7 +32,8 @@ from cistern_archive.errors import CatalogError, CisternError
 from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.sonar.scan import yaw_from_compass_deg
 from cistern_archive.tritech.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
-from cistern_archive.tritech.messages import HeadSettings
+from cistern_archive.tritech.codec import STEPS_PER_REV
+from cistern_archive.tritech.messages import STEP_SIZES, HeadSettings
 
 __all__ = [
     "AcquisitionResult",
@@ -131,8 +132,8 @@ def settings_for_record(record: SiteRecord) -> HeadSettings:
     if sonar.bins is not None:
         values["n_bins"] = sonar.bins
     if sonar.step_deg is not None:
-        wanted = sonar.step_deg * 6400 / 360
-        values["step"] = min((4, 8, 16, 32, 64, 128), key=lambda s: abs(s - wanted))
+        wanted = sonar.step_deg * STEPS_PER_REV / 360
+        values["step"] = min(STEP_SIZES, key=lambda s: abs(s - wanted))
     if sonar.gain is not None and sonar.gain <= 1:
         values["gain"] = sonar.gain
     return HeadSettings(continuous=True, **values)

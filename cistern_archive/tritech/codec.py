@@ -62,6 +62,7 @@ __all__ = [
     "STEPS_PER_REV",
     "StreamDecoder",
     "bearing_to_rad",
+    "bin_length_m",
     "decode_head_data",
     "decode_packet",
     "encode_head_data",
@@ -686,7 +687,7 @@ class HeadData(HdCtrlFlags):
         speed_of_sound : float
             Sound speed in the water, m/s (1500 by default; fresh cistern water is nearer 1480).
         """
-        return speed_of_sound * self.bin_time_s() / 2.0
+        return bin_length_m(self.ad_interval, speed_of_sound)
 
     def span_m(self, speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> float:
         """Range covered by the line, ``NBins x bin size``."""
@@ -784,6 +785,11 @@ def encode_head_data(head: HeadData, *, high_nibble_first: bool = True, sid: int
                             head.ad_low, head.heading_offset, head.ad_interval, head.left_limit,
                             head.right_limit, head.step_size, head.bearing, len(data))
     return encode_packet(MessageType.HEAD_DATA, header + data, sid=sid, did=did, node=node)
+
+
+def bin_length_m(ad_interval: int, speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> float:
+    """Bin length of an ADInterval: ``c x ADInterval x 640 ns / 2`` in metres (§7.4)."""
+    return speed_of_sound * ad_interval * ADINTERVAL_S / 2.0
 
 
 def ad_interval_for(range_m: float, n_bins: int, speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> int:

@@ -31,14 +31,14 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, replace
 from enum import IntFlag
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cistern_archive.tritech.codec import (
+    bin_length_m,
     HdCtrlFlags,
-    ADINTERVAL_S,
     DEFAULT_SPEED_OF_SOUND,
     HDCTRL_ADC8ON,
     HDCTRL_CONT,
@@ -322,7 +322,7 @@ class HeadCommand(HdCtrlFlags):
 
     def bin_size_m(self, speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> float:
         """``c x ADInterval x 640 ns / 2`` (§7.4)."""
-        return speed_of_sound * self.ad_interval * ADINTERVAL_S / 2.0
+        return bin_length_m(self.ad_interval, speed_of_sound)
 
     def payload(self) -> bytes:
         body = _HEAD_CMD.pack(self.hd_ctrl, self.hd_type, *self.txn, *self.rxn, self.tx_pulse_len, self.range_scale,
@@ -487,6 +487,7 @@ def decode_message(packet: Packet, *, high_nibble_first: bool = True) -> Message
 # ------------------------------------------------------------------------------------------------
 
 StepSize = Literal[4, 8, 16, 32, 64, 128]
+STEP_SIZES: tuple[int, ...] = get_args(StepSize)
 
 
 class HeadSettings(BaseModel):
@@ -534,7 +535,7 @@ class HeadSettings(BaseModel):
 
     def bin_size_m(self) -> float:
         """The bin length the head will actually use, ``c x ADInterval x 640 ns / 2`` (§7.4)."""
-        return self.speed_of_sound * self.ad_interval() * ADINTERVAL_S / 2.0
+        return bin_length_m(self.ad_interval(), self.speed_of_sound)
 
     def hd_ctrl(self) -> int:
         """The HdCtrl word (§7.3): 0x2300 plus adc8on, cont, scanright, invert."""
@@ -578,8 +579,8 @@ class HeadSettings(BaseModel):
 
 def settings_from_command(cmd: HeadCommand, speed_of_sound: float = DEFAULT_SPEED_OF_SOUND) -> HeadSettings:
     """The :class:`HeadSettings` closest to a received command (range from ADInterval, §7.4)."""
-    step = cmd.step_size if cmd.step_size in (4, 8, 16, 32, 64, 128) else 16
-    range_m = cmd.n_bins * speed_of_sound * cmd.ad_interval * ADINTERVAL_S / 2.0
+    step = cmd.step_size if cmd.step_size in STEP_SIZES else 16
+    range_m = cmd.n_bins * bin_length_m(cmd.ad_interval, speed_of_sound)
     return HeadSettings(
         range_m=max(range_m, 0.01), n_bins=max(2, cmd.n_bins), gain=min(1.0, cmd.igain[0] / IGAIN_MAX),
         step=step, continuous=cmd.continuous, left_limit=cmd.left_limit % STEPS_PER_REV,
