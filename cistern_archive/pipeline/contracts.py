@@ -104,6 +104,13 @@ class MatchResult:
     def translation(self) -> np.ndarray:
         return np.array([self.dx_m, self.dy_m])
 
+    @classmethod
+    def no_estimate(cls, reason: str, *, seconds: float, weight: float = 0.0) -> "MatchResult":
+        """A pair the matcher could not estimate at all: not converged, NaN displacement, ``reason``."""
+        nan = float("nan")
+        return cls(i=-1, j=-1, dx_m=nan, dy_m=nan, dyaw_rad=nan, weight=weight, converged=False, iterations=0,
+                   seconds=seconds, reason=reason)
+
 
 @runtime_checkable
 class Matcher(Protocol):

@@ -190,7 +190,7 @@ class CorrelativeMatcher:
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:
-            return _result(np.full(3, np.nan), 0.0, False, why, 0, start)
+            return MatchResult.no_estimate(why, seconds=time.perf_counter() - start)
         model = ReferenceModel(reference)
         src = scan_points(moving)
         pyr = LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, p.search_m + 4 * p.sigma_m, p.levels,
@@ -201,7 +201,7 @@ class CorrelativeMatcher:
                                          floor=p.ambiguity_ratio * p.min_score)
         if len(nodes) == 0:
             reason = f"no pose in the window scores {p.ambiguity_ratio * p.min_score:.2f} or more"
-            return _result(np.full(3, np.nan), 0.0, False, reason, 0, start)
+            return MatchResult.no_estimate(reason, seconds=time.perf_counter() - start)
         best = np.array([nodes[0, 0] * p.resolution_m, nodes[0, 1] * p.resolution_m, angles[nodes[0, 2]]])
         reason = ""
         if scores[0] < p.min_score:

@@ -107,7 +107,7 @@ class ICPMatcher:
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:
-            return _failed(why, start)
+            return MatchResult.no_estimate(why, seconds=time.perf_counter() - start)
         model = ReferenceModel(reference)
         src = scan_points(moving)
         out = run_icp(model, src, np.zeros(3), variant=p.variant, max_iterations=p.max_iterations,
@@ -130,7 +130,3 @@ def fit_covariance(model: ReferenceModel, moved: np.ndarray, inlier_distance_m: 
     inl = dist <= inlier_distance_m
     return covariance_from_fit(moved[inl], model.normals[idx[inl]], rms_m) if inl.sum() >= 3 else None
 
-
-def _failed(reason: str, start: float) -> MatchResult:
-    return MatchResult(i=-1, j=-1, dx_m=float("nan"), dy_m=float("nan"), dyaw_rad=float("nan"), weight=0.0,
-                       converged=False, iterations=0, seconds=time.perf_counter() - start, reason=reason)

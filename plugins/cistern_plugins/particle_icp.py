@@ -103,7 +103,7 @@ class ParticleICPMatcher:
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:
-            return MatchResult(-1, -1, math.nan, math.nan, math.nan, 0.0, False, 0, time.perf_counter() - start, why)
+            return MatchResult.no_estimate(why, seconds=time.perf_counter() - start)
         model = ReferenceModel(reference)
         src = scan_points(moving)
         scale = np.array([p.init_m, p.init_m, math.radians(p.init_deg)])

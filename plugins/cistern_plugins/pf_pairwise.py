@@ -218,12 +218,12 @@ class PFPairwiseMatcher:
         start = time.perf_counter()
         refusal = _refuse(reference, moving, p)
         if refusal:
-            return _failed(refusal, time.perf_counter() - start)
+            return MatchResult.no_estimate(refusal, seconds=time.perf_counter() - start, weight=float("nan"))
         model = self._map(reference, p)
         if not model.lookup.any_occupied:
-            return _failed(
+            return MatchResult.no_estimate(
                 f"map of the reference scan has no cell above weight_threshold={p.weight_threshold}",
-                time.perf_counter() - start,
+                seconds=time.perf_counter() - start, weight=float("nan"),
             )
         beams = _select_beams(moving, p.max_beams)
         return _run_filter(model, beams, p, rng, start, fit_check(reference, moving, p))
@@ -299,13 +299,6 @@ def _refuse(reference: RangeScan, moving: RangeScan, p: PFParams) -> str:
         if n < p.min_beams:
             return f"{label} scan has {n} echoes, fewer than min_beams={p.min_beams}"
     return ""
-
-
-def _failed(reason: str, seconds: float) -> MatchResult:
-    return MatchResult(
-        i=-1, j=-1, dx_m=float("nan"), dy_m=float("nan"), dyaw_rad=float("nan"), weight=float("nan"),
-        converged=False, iterations=0, seconds=seconds, reason=reason,
-    )
 
 
 def _select_beams(scan: RangeScan, max_beams: int) -> _Beams:
