@@ -20,7 +20,6 @@ equal apart from nothing. Manifests use SHA-256 and SHA-512.
 from __future__ import annotations
 
 import datetime as dt
-import json
 import os
 import shutil
 import tempfile
@@ -65,11 +64,6 @@ def _find_record(catalog: Path, site_id: str, registry):
             return loaded
     known = ", ".join(sorted(r.record.id for r in report.records)) or "none"
     raise CatalogError(report.problems + [f"{catalog}: no valid site record with id {site_id!r} (valid: {known})"])
-
-
-def _write_json(path: Path, data: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n", encoding="utf-8")
 
 
 def _events(archive: Archive, site_id: str, digests: set[str]) -> list[dict[str, Any]]:
@@ -117,7 +111,7 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     from cistern_archive import __version__
     from cistern_archive.archive.preservation import write_preservation
     from cistern_archive.pipeline.registry import default_registry
-    from cistern_archive.pipeline.runner import build_site, write_site_result
+    from cistern_archive.pipeline.runner import build_site, write_json_atomic, write_site_result
     from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site
     from cistern_archive.service.rebuild import is_current, plan_site, published_build
@@ -151,13 +145,14 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
             resolved = loaded.record.model_dump(mode="json")
             for item in plan.key.material["plugins"]:
                 resolved["pipeline"][item["stage"]] = {"plugin": item["plugin"], "params": item["params"]}
-            _write_json(staged / "config" / "resolved.json", resolved)
-            _write_json(staged / "provenance" / "build-key.json", {"build_key": plan.key.key, **plan.key.material})
-            _write_json(staged / "provenance" / "result-provenance.json",
-                        build.result.provenance.model_dump(mode="json") if build.result.provenance else {})
+            provenance = staged / "provenance"
             fields = ("relative_path", "role", "sha256", "size", "ingested_at")
-            _write_json(staged / "provenance" / "inputs.json", [{k: row[k] for k in fields} for row in inputs])
-            _write_json(staged / "provenance" / "events.json", _events(store, site_id, {r["sha256"] for r in inputs}))
+            write_json_atomic(resolved, staged / "config" / "resolved.json")
+            write_json_atomic({"build_key": plan.key.key, **plan.key.material}, provenance / "build-key.json")
+            write_json_atomic(build.result.provenance.model_dump(mode="json") if build.result.provenance else {},
+                              provenance / "result-provenance.json")
+            write_json_atomic([{k: row[k] for k in fields} for row in inputs], provenance / "inputs.json")
+            write_json_atomic(_events(store, site_id, {r["sha256"] for r in inputs}), provenance / "events.json")
             store.index.add_event("publish", agent=store.agent, outcome="success", site_id=site_id,
                                   detail={"bag": str(bag), "build_key": plan.key.key})
         record = loaded.record
