@@ -268,3 +268,25 @@ def test_fit_check_failure_is_reported_not_converged():
     result = match(a, b, min_inliers=10_000)
     assert_not_silent(result)
     assert result.reason.startswith("fit check: only")
+
+
+def test_refinement_pulls_an_estimate_onto_the_walls():
+    """A verified estimate a few centimetres off is moved onto the reference's walls by point-to-line
+    ICP; ``refine='none'`` keeps it, and a refinement moving farther than ``refine_max_shift_m`` is dropped."""
+    from cistern_plugins.pf_pairwise import fit_check
+
+    a, b = scan_at(A_XY, seed=1, range_noise_m=0.0), scan_at(B_XY, seed=2, range_noise_m=0.0)
+    truth = np.array([B_XY[0] - A_XY[0], B_XY[1] - A_XY[1], 0.0])
+    off = tuple(truth + [0.04, -0.03, math.radians(0.5)])
+    refined = np.array(fit_check(a, b, PFParams()).refine(off))
+    assert np.hypot(*(refined[:2] - truth[:2])) < 0.01 < np.hypot(*(np.array(off[:2]) - truth[:2]))
+    assert fit_check(a, b, PFParams(refine="none")).refine(off) == off
+    assert fit_check(a, b, PFParams(refine_max_shift_m=0.01)).refine(off) == off
+
+
+def test_converged_matches_are_refined():
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    refined, plain = match(a, b), match(a, b, refine="none")
+    assert refined.converged and plain.converged
+    err = [math.hypot(r.dx_m - (B_XY[0] - A_XY[0]), r.dy_m - (B_XY[1] - A_XY[1])) for r in (refined, plain)]
+    assert err[0] < 0.03 and err[0] != err[1]

@@ -59,6 +59,29 @@ class MatchHistory:
     snapshot_iterations: tuple[int, ...] = ()
 
 
+@dataclass(frozen=True)
+class MatchGuess:
+    """Where a localizer expects scan ``j`` relative to scan ``i``, from the matches it already has.
+
+    A matcher that accepts a ``guess`` searches the square ``±radius_m`` around ``(dx_m, dy_m)`` and the
+    heading correction around ``dyaw_rad`` instead of its own wide window: the search window around an
+    odometry estimate that SLAM systems use to match scans beyond neighbours (loop closures), here with
+    the chain of neighbour matches as the odometry.
+
+    Attributes
+    ----------
+    dx_m, dy_m, dyaw_rad : float
+        Expected ``p_j - p_i`` (in scan i's compass frame) and heading correction of scan j.
+    radius_m : float
+        Half the side of the square to search.
+    """
+
+    dx_m: float
+    dy_m: float
+    dyaw_rad: float
+    radius_m: float
+
+
 @dataclass(frozen=True, eq=False)
 class MatchResult:
     """The estimate of one directed pair: scan ``j`` located in scan ``i``'s map.
@@ -85,6 +108,8 @@ class MatchResult:
         Uncertainty of (dx, dy, dyaw) when the matcher estimates it.
     history : MatchHistory or None
         Diagnostics for the report.
+    guess : MatchGuess or None
+        The window the matcher was asked to search (set by the runner; ``None`` for a global search).
     """
 
     i: int
@@ -99,6 +124,7 @@ class MatchResult:
     reason: str = ""
     covariance: np.ndarray | None = None
     history: MatchHistory | None = None
+    guess: MatchGuess | None = None
 
     @property
     def translation(self) -> np.ndarray:
@@ -122,8 +148,23 @@ class Matcher(Protocol):
     def match(
         self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator
     ) -> MatchResult:  # pragma: no cover - protocol
-        """Return the estimate of ``p_moving - p_reference`` (with ``i = j = -1``; the runner sets them)."""
+        """Return the estimate of ``p_moving - p_reference`` (with ``i = j = -1``; the runner sets them).
+
+        A matcher may also take a keyword ``guess: MatchGuess | None = None`` (see :func:`accepts_guess`);
+        with a guess it searches only the window the guess gives.
+        """
         ...
+
+
+def accepts_guess(matcher: object) -> bool:
+    """Whether ``matcher.match`` takes the optional ``guess`` keyword (:class:`MatchGuess`)."""
+    import inspect
+
+    try:
+        parameters = inspect.signature(matcher.match).parameters  # type: ignore[attr-defined]
+    except (TypeError, ValueError, AttributeError):
+        return False
+    return "guess" in parameters
 
 
 # ------------------------------------------------------------------------------------- localizer
@@ -162,7 +203,13 @@ class Localizer(Protocol):
     Params: ClassVar[type[StageParams]]
 
     def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:  # pragma: no cover
-        """Directed pairs (i, j) the matcher must run on, in the order they should run."""
+        """Directed pairs (i, j) the matcher must run on, in the order they should run.
+
+        A localizer may also have ``guided_pairs(scans, matches, params)``, returning a second round of
+        ``(i, j, guess)`` (``guess`` a :class:`MatchGuess` or ``None``) worked out from the first round's
+        matches; the runner matches them too and passes both rounds to :meth:`localize`
+        (:func:`cistern_archive.pipeline.runner.match_rounds`).
+        """
         ...
 
     def localize(

@@ -14,7 +14,7 @@ import platform
 import tempfile
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +26,7 @@ from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.errors import StageError
-from cistern_archive.pipeline.contracts import STAGES, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import STAGES, MatchGuess, MatchResult, StageParams, accepts_guess
 from cistern_archive.pipeline.registry import LoadedPlugin, Registry, default_registry
 from cistern_archive.pipeline.results import (
     DimensionResult,
@@ -39,7 +39,7 @@ from cistern_archive.pipeline.results import (
     StageFailure,
 )
 from cistern_archive.sonar.readers import read_file
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.sonar.scan import RangeScan, Scan
 
 T = TypeVar("T")
 
@@ -150,9 +150,15 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> Sit
                 build.range_scans.append(_run("segment", ref.file, lambda s=scan: segment(s, record.segmentation)))
         localizer, matcher = stages["localizer"], stages["matcher"]
         with timer.stage("match"):
-            pairs = _run("match", "pair list", lambda: localizer.instance.pairs(len(build.range_scans), localizer.params))
-            for i, j in pairs:
-                build.matches.append(_run("match", _pair_label(record, i, j), lambda i=i, j=j: _match(build, matcher, record.seed, i, j)))
+            def run_pair(i: int, j: int, guess: MatchGuess | None) -> MatchResult:
+                return _run("match", _pair_label(record, i, j),
+                            lambda: _match(build, matcher, record.seed, i, j, guess))
+
+            def plan(label: str, func: Callable[[], T]) -> T:
+                return _run("match", label, func)
+
+            build.matches.extend(match_rounds(build.range_scans, localizer.instance, localizer.params, run_pair,
+                                              plan=plan))
         with timer.stage("localize"):
             build.poses = _run("localize", f"{len(build.matches)} matches",
                                lambda: localizer.instance.localize(build.range_scans, build.matches, localizer.params))
@@ -179,14 +185,41 @@ def _pair_label(record: SiteRecord, i: int, j: int) -> str:
     return f"pair {i}->{j} ({stations[i]} -> {stations[j]})"
 
 
-def _match(build: SiteBuild, matcher: Stage, seed: int, i: int, j: int) -> MatchResult:
+def match_rounds(
+    scans: Sequence[RangeScan], localizer: Any, localizer_params: StageParams,
+    match_pair: Callable[[int, int, MatchGuess | None], MatchResult],
+    *, plan: Callable[[str, Callable[[], Any]], Any] = lambda label, func: func(),
+) -> list[MatchResult]:
+    """Every match a localizer asks for: ``localizer.pairs`` first, then, when the localizer has
+    ``guided_pairs``, the second round it works out from the first round's matches (with a
+    :class:`MatchGuess` per pair). ``match_pair(i, j, guess)`` runs one pair; ``plan(label, func)`` runs
+    the localizer's own calls (the runner uses it to label a failure)."""
+    pairs = plan("pair list", lambda: localizer.pairs(len(scans), localizer_params))
+    matches = [match_pair(i, j, None) for i, j in pairs]
+    guided = getattr(localizer, "guided_pairs", None)
+    if guided is not None:
+        second = plan("guided pair list", lambda: guided(scans, list(matches), localizer_params))
+        matches += [match_pair(i, j, guess) for i, j, guess in second]
+    return matches
+
+
+def _match(build: SiteBuild, matcher: Stage, seed: int, i: int, j: int, guess: MatchGuess | None = None) -> MatchResult:
+    return match_pair(matcher.instance, matcher.params, build.range_scans, seed, i, j, guess)
+
+
+def match_pair(matcher: Any, params: StageParams, scans: Sequence[RangeScan], seed: int, i: int, j: int,
+               guess: MatchGuess | None = None) -> MatchResult:
+    """Match the directed pair ``(i, j)`` with its own seeded generator (:func:`pair_rng`) and the
+    ``guess`` when the matcher takes one (:func:`~cistern_archive.pipeline.contracts.accepts_guess`;
+    otherwise the pair is matched without it and recorded so); ``i``, ``j``, ``guess`` and a wall-clock
+    time when the matcher reports none are set on the result."""
     start = time.perf_counter()
-    result = matcher.instance.match(build.range_scans[i], build.range_scans[j], matcher.params,
-                                    rng=pair_rng(seed, i, j))
+    extra = {"guess": guess} if guess is not None and accepts_guess(matcher) else {}
+    result = matcher.match(scans[i], scans[j], params, rng=pair_rng(seed, i, j), **extra)
     if not isinstance(result, MatchResult):
         raise TypeError(f"matcher returned {type(result).__name__}, expected MatchResult")
     seconds = result.seconds if result.seconds > 0 else time.perf_counter() - start
-    return MatchResult(**{**result.__dict__, "i": i, "j": j, "seconds": seconds})
+    return MatchResult(**{**result.__dict__, "i": i, "j": j, "seconds": seconds, "guess": extra.get("guess")})
 
 
 def _finite(value: float) -> float | None:

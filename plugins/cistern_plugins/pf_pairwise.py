@@ -105,7 +105,7 @@ import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, replace
-from typing import Callable, ClassVar, Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -114,7 +114,8 @@ from cistern_archive.grid.evidence import DenseMap, SonarModel, dense_scan_map
 from cistern_archive.grid.raycast import FAR_M, OccupancyLookup
 from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
-from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, verdict
+from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, scan_points, verdict
+from cistern_plugins.icp import run_icp
 
 
 class PFParams(ConvergenceParams):
@@ -177,6 +178,15 @@ class PFParams(ConvergenceParams):
     )
     unknown_score: float = Field(
         0.0, ge=-1, le=1, description="contribution of a beam whose end lies where m_i has no evidence (paper: -1)"
+    )
+    refine: Literal["none", "point-to-line"] = Field(
+        "point-to-line", description="refine a verified estimate by point-to-line ICP of the two scans' echoes"
+    )
+    refine_iterations: int = Field(30, ge=1, description="most ICP iterations of the refinement")
+    refine_correspondence_m: float = Field(0.3, gt=0, description="refinement: farthest paired echoes (m)")
+    refine_trim_fraction: float = Field(0.8, gt=0, le=1, description="refinement: share of closest pairs kept")
+    refine_max_shift_m: float = Field(
+        0.2, gt=0, description="a refinement moving the estimate farther than this is discarded (m)"
     )
 
 
@@ -417,9 +427,63 @@ class _Outcome:
     history: MatchHistory
 
 
-def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> Callable[[tuple[float, float, float]], str]:
+class PairFit:
+    """The reference scan's points (built on first use) and what the filter's estimate is checked and
+    refined with: :meth:`__call__` is the fit check of :func:`fit_check`, :meth:`refine` the
+    point-to-line refinement of ``refine``."""
+
+    def __init__(self, reference: RangeScan, moving: RangeScan, p: PFParams):
+        self.reference, self.moving, self.p = reference, moving, p
+        self._model: ReferenceModel | None = None
+
+    @property
+    def model(self) -> ReferenceModel:
+        if self._model is None:
+            self._model = ReferenceModel(self.reference)
+        return self._model
+
+    def __call__(self, estimate: tuple[float, float, float]) -> str:
+        """Why ``estimate`` fails the shared verdict ("" if it passes, or if ``verify_fit`` is off)."""
+        p = self.p
+        if not p.verify_fit:
+            return ""
+        limits = p.limits()
+        quality = self.model.assess_pair(self.moving, np.array(estimate), limits)
+        why = verdict(quality, limits)
+        if not why and quality.inlier_ratio < p.partial_inlier_ratio:
+            why = verdict(quality, replace(limits, max_violation_ratio=p.partial_max_violation))
+        return f"fit check: {why}" if why else ""
+
+    def refine(self, estimate: tuple[float, float, float]) -> tuple[float, float, float]:
+        """``estimate`` refined by trimmed point-to-line ICP of the moving scan's echoes against the
+        reference scan's (:func:`cistern_plugins.icp.run_icp`), or unchanged when ``refine`` is off, the
+        scans have too few echoes, or the refinement moves farther than ``refine_max_shift_m``.
+
+        The likelihood field scores how many beams land on the sampled walls of ``m_i``; walls are
+        sampled densely near each sonar and sparsely far from it, so the score favours placements that
+        bring the two scans' dense parts together and converged estimates are short by a few
+        centimetres (``benchmarks/RESULTS.md``). Point-to-line distances do not depend on how densely
+        a wall is sampled.
+        """
+        p = self.p
+        if p.refine == "none" or self.model.tree is None or len(self.model.points) < 3:
+            return estimate
+        src = scan_points(self.moving)
+        if len(src) < 3:
+            return estimate
+        out = run_icp(self.model, src, np.array(estimate), variant="point-to-line",
+                      max_iterations=p.refine_iterations, max_correspondence_m=p.refine_correspondence_m,
+                      trim_fraction=p.refine_trim_fraction, tolerance_m=1e-4)
+        shift = math.hypot(out.pose[0] - estimate[0], out.pose[1] - estimate[1])
+        if shift > p.refine_max_shift_m:
+            return estimate
+        return float(out.pose[0]), float(out.pose[1]), float(out.pose[2])
+
+
+def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> PairFit:
     """The shared convergence verdict of the point matchers (:func:`cistern_plugins.alignment.verdict`)
-    as a check of a verified estimate: why it fails ("" if it passes, or if ``verify_fit`` is off).
+    as a check of a verified estimate: calling the result gives why an estimate fails ("" if it passes,
+    or if ``verify_fit`` is off).
 
     With the defaults the inlier count and the inlier share (seen from both scans) apply to every
     estimate, and the free-space test (``partial_max_violation``) to those whose inlier share is below
@@ -428,26 +492,12 @@ def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> Callable[
     map itself and correct matches of segmented sonar scans can put a fifth of their wall points in the
     other scan's free space. The reference's points, tree and free space are built on the first call.
     """
-    model: list[ReferenceModel] = []
-
-    def check(estimate: tuple[float, float, float]) -> str:
-        if not p.verify_fit:
-            return ""
-        if not model:
-            model.append(ReferenceModel(reference))
-        limits = p.limits()
-        quality = model[0].assess_pair(moving, np.array(estimate), limits)
-        why = verdict(quality, limits)
-        if not why and quality.inlier_ratio < p.partial_inlier_ratio:
-            why = verdict(quality, replace(limits, max_violation_ratio=p.partial_max_violation))
-        return f"fit check: {why}" if why else ""
-
-    return check
+    return PairFit(reference, moving, p)
 
 
 def _run_filter(
     model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, start: float,
-    check: Callable[[tuple[float, float, float]], str],
+    check: PairFit,
 ) -> MatchResult:
     """Table II from a uniform start; if it fails, up to ``restarts`` filters started at the best
     positions of the coarse score grid (:func:`grid_modes`). The first run that converges and passes
@@ -474,7 +524,7 @@ def _run_filter(
 
 
 def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, particles: np.ndarray,
-            check: Callable[[tuple[float, float, float]], str]) -> _Outcome:
+            check: PairFit) -> _Outcome:
     """Table II: propagate, weigh, average (eqs. 5–6), resample, until converged or Num_Iterations;
     then :func:`verify_unique` if ``verify`` and ``check``."""
     noise = np.array([p.sigma_n_xy_m, p.sigma_n_xy_m, math.radians(p.sigma_n_theta_deg)])
@@ -507,6 +557,7 @@ def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generat
         reason = verify_unique(model, beams, (dx, dy, theta), p)
         converged = not reason
     if converged:
+        dx, dy, theta = check.refine((dx, dy, theta))
         reason = check((dx, dy, theta))
         converged = not reason
     return _Outcome(
