@@ -21,14 +21,16 @@ matcher (``karto-scanmatcher``; 5 m search window, 0.025 m grid, ±25° yaw; con
 reports an honest flag of its own.
 
 ``--gallery SITE`` instead compares the localizers on a simulated catalog site with truth poses
-(default ``water-gallery``, the 30 m gallery): for each matcher given with ``--gallery-matchers``, the
-``wls`` and ``pose-graph`` localizers each run on the pairs they ask for, and the position error of the
-placed scans against the truth (in the reference scan's compass frame) is reported, with the mean
-along-track error of the converged neighbour matches (a matcher's scale bias along a gallery, which no
-localizer can remove).
+(``water-gallery``: the 36 m demo gallery): for each matcher given with ``--gallery-matchers``, the
+``wls`` and ``pose-graph`` localizers each run on the pairs they ask for (both rounds, see
+:func:`cistern_archive.pipeline.runner.match_rounds`), and the position error of the placed scans
+against the truth is reported in the reference scan's compass frame and after rigid alignment, with the
+mean along-track error of the converged neighbour matches (a matcher's scale bias along a gallery,
+which no localizer can remove). ``--localizer-params`` sets localizer parameters, e.g. ``guided``.
 
-``--synthetic-gallery N`` does the same on N random ray-cast galleries (the ``rays`` sonar model, 1.5 m
-station spacing, compass error σ 2°), where the truth of every station is exact.
+``--synthetic-gallery N`` does the same on N random 30 m ray-cast galleries (the ``rays`` sonar model,
+1.5 m station spacing, compass error σ 2°), where the truth of every station is exact; it also reports
+both errors on the scans both localizers place.
 
     python benchmarks/matchers.py --quick --json
     python benchmarks/matchers.py --gallery water-gallery --json
@@ -46,7 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.pipeline.contracts import MatchResult
+from collections.abc import Callable
+
+from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.errors import PluginError
 from cistern_archive.sonar.scan import RangeScan
@@ -207,12 +211,23 @@ def run(n: int, seed: int, n_blind: int, sonar: str) -> dict:
     return out
 
 
-def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: dict | None = None) -> dict:
+def cached(cache: dict, run: Callable[[int, int, MatchGuess | None], MatchResult]):
+    """``run`` with its results kept in ``cache`` by pair and guess, so that the localizers compared
+    on one site share the matches they both ask for."""
+    def match(i: int, j: int, guess: MatchGuess | None) -> MatchResult:
+        if (i, j, guess) not in cache:
+            cache[(i, j, guess)] = run(i, j, guess)
+        return cache[(i, j, guess)]
+    return match
+
+
+def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: dict | None = None,
+            loc_overrides: dict | None = None) -> dict:
     """Position error of ``wls`` and ``pose-graph`` on a simulated site, for each matcher (with optional
     per-matcher parameters, as a site record would give them)."""
     from cistern_archive.catalog.loader import load_record
     from cistern_archive.evaluation import in_compass_frame, reference_frame_errors
-    from cistern_archive.pipeline.runner import load_scan, pair_rng
+    from cistern_archive.pipeline.runner import load_scan, match_pair, match_rounds
     from cistern_archive.sonar.segmentation import segment
 
     loaded = load_record(catalog / "sites" / f"{site}.yaml", catalog)
@@ -226,20 +241,17 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
     for mname in matcher_names:
         matcher = reg.load("matcher", mname).instance
         mparams = matcher.Params.model_validate((matcher_params or {}).get(mname, {}))
-        cache: dict[tuple[int, int], MatchResult] = {}
+        cache: dict = {}
         for lname in ("wls", "pose-graph"):
             loc = reg.load("localizer", lname).instance
-            lp = loc.Params()
+            lp = localizer_params(loc, lname, loc_overrides)
             start = time.perf_counter()
-            matches = []
-            for i, j in loc.pairs(len(scans), lp):
-                if (i, j) not in cache:
-                    r = matcher.match(scans[i], scans[j], mparams, rng=pair_rng(rec.seed, i, j))
-                    cache[(i, j)] = MatchResult(**{**r.__dict__, "i": i, "j": j})
-                matches.append(cache[(i, j)])
+            matches = match_rounds(scans, loc, lp, cached(cache, lambda i, j, g: match_pair(
+                matcher, mparams, scans, rec.seed, i, j, g)))
             poses = loc.localize(scans, matches, lp)
             seconds = time.perf_counter() - start
             errs = reference_frame_errors(poses, true_xy, compass_err)
+            ate = aligned_errors(poses, true_xy)
             along = []
             for m in matches:
                 if m.converged and abs(m.i - m.j) == 1:
@@ -252,23 +264,47 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
                 "pairs_converged": int(sum(m.converged for m in matches)),
                 "median_position_error_m": float(np.median(errs)) if errs else float("nan"),
                 "max_position_error_m": float(np.max(errs)) if errs else float("nan"),
+                "median_aligned_error_m": float(np.median(ate)) if ate else float("nan"),
+                "max_aligned_error_m": float(np.max(ate)) if ate else float("nan"),
                 "seconds": seconds,
             }
             print(f"{mname}+{lname}: {out['results'][f'{mname}+{lname}']}", file=sys.stderr)
     return out
 
 
-def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
-    """Median position error of ``wls`` and ``pose-graph`` on ``n`` random ray-cast galleries."""
+def localizer_params(loc, name: str, overrides: dict | None):
+    """The localizer's parameters, with the ``overrides`` given for its name."""
+    return loc.Params.model_validate((overrides or {}).get(name, {}))
+
+
+def aligned_errors(poses, true_xy: np.ndarray, only: list[int] | None = None) -> list[float]:
+    """Position errors of the placed scans (or of the scans ``only``) after rigid alignment onto the
+    truth (the usual absolute trajectory error, :func:`cistern_archive.evaluation.align_rigid_2d`)."""
+    from cistern_archive.evaluation import align_rigid_2d
+
+    placed = np.flatnonzero(poses.placed) if only is None else np.asarray(only, dtype=int)
+    if placed.size < 2:
+        return []
+    est, truth = poses.xy_m[placed], true_xy[placed]
+    rotation, translation = align_rigid_2d(est, truth)
+    return np.linalg.norm(est @ rotation.T + translation - truth, axis=1).tolist()
+
+
+def synthetic_galleries(n: int, seed: int, matcher_name: str, loc_overrides: dict | None = None) -> dict:
+    """Median position error of ``wls`` and ``pose-graph`` on ``n`` random ray-cast galleries, in the
+    reference scan's frame and after rigid alignment."""
     from cistern_archive.evaluation import reference_frame_errors
     from cistern_archive.testing.geometry import random_gallery, stations_along
+    from cistern_archive.pipeline.runner import match_pair, match_rounds
     from cistern_archive.testing.pairs import simulate_range_scan
 
     rng = np.random.default_rng(seed)
     reg = default_registry()
     matcher = reg.load("matcher", matcher_name).instance
     errors: dict[str, list[float]] = {"wls": [], "pose-graph": []}
+    aligned: dict[str, list[float]] = {"wls": [], "pose-graph": []}
     common: dict[str, list[float]] = {"wls": [], "pose-graph": []}
+    aligned_common: dict[str, list[float]] = {"wls": [], "pose-graph": []}
     per_site = []
     for g in range(n):
         env = random_gallery(rng, length_m=30.0)
@@ -278,32 +314,37 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str) -> dict:
         scans = [simulate_range_scan(env, st, yt, compass_yaw_rad=float(cy), n_beams=200, max_range_m=6.0,
                                      noise_m=0.05, outlier_fraction=0.05, dropout_fraction=0.05, rng=rng)
                  for st, yt, cy in zip(stations, yaw_true, compass)]
-        cache: dict[tuple[int, int], MatchResult] = {}
+        cache: dict = {}
         site = {"scans": len(scans)}
         by_scan: dict[str, dict[int, float]] = {}
+        solved = {}
         for lname in errors:
             loc = reg.load("localizer", lname).instance
-            lp = loc.Params()
-            matches = []
-            for i, j in loc.pairs(len(scans), lp):
-                if (i, j) not in cache:
-                    r = matcher.match(scans[i], scans[j], matcher.Params(), rng=np.random.default_rng([seed, g, i, j]))
-                    cache[(i, j)] = MatchResult(**{**r.__dict__, "i": i, "j": j})
-                matches.append(cache[(i, j)])
-            poses = loc.localize(scans, matches, lp)
+            lp = localizer_params(loc, lname, loc_overrides)
+            matches = match_rounds(scans, loc, lp, cached(cache, lambda i, j, guess, g=g: match_pair(
+                matcher, matcher.Params(), scans, seed * 1000 + g, i, j, guess)))
+            poses = solved[lname] = loc.localize(scans, matches, lp)
             errs = reference_frame_errors(poses, stations, compass - yaw_true)
             by_scan[lname] = dict(zip(np.flatnonzero(poses.placed).tolist(), errs))
             errors[lname] += errs
+            ate = aligned_errors(poses, stations)
+            aligned[lname] += ate
             site[lname] = {"placed": int(poses.placed.sum()),
-                           "median_position_error_m": float(np.median(errs)) if errs else float("nan")}
+                           "median_position_error_m": float(np.median(errs)) if errs else float("nan"),
+                           "median_aligned_error_m": float(np.median(ate)) if ate else float("nan")}
         both = sorted(set(by_scan["wls"]) & set(by_scan["pose-graph"]))
         for lname in common:
             common[lname] += [by_scan[lname][k] for k in both]
+            aligned_common[lname] += aligned_errors(solved[lname], stations, both)
         per_site.append(site)
         print(f"gallery {g}: {site}", file=sys.stderr)
     med = {k: float(np.median(v)) if v else float("nan") for k, v in errors.items()}
     med_common = {k: float(np.median(v)) if v else float("nan") for k, v in common.items()}
-    return {"matcher": matcher_name, "galleries": per_site, "median_position_error_m": med,
+    med_aligned = {k: float(np.median(v)) if v else float("nan") for k, v in aligned.items()}
+    med_aligned_common = {k: float(np.median(v)) if v else float("nan") for k, v in aligned_common.items()}
+    return {"matcher": matcher_name, "localizer_params": loc_overrides or {}, "galleries": per_site,
+            "median_position_error_m": med, "median_aligned_error_m": med_aligned,
+            "median_aligned_error_common_m": med_aligned_common,
             "placed": {k: len(v) for k, v in errors.items()}, "scans": sum(g["scans"] for g in per_site),
             "median_position_error_common_m": med_common, "common_scans": len(common["wls"])}
 
@@ -350,20 +391,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--catalog", type=Path, default=Path(__file__).resolve().parents[1] / "catalog")
     ap.add_argument("--synthetic-gallery", type=int, metavar="N", help="wls vs pose-graph on N random galleries")
     ap.add_argument("--gallery-matcher", default="correlative", help="matcher for --synthetic-gallery")
+    ap.add_argument("--localizer-params", type=json.loads, default={},
+                    help='JSON {localizer: {param: value}} for --gallery and --synthetic-gallery, '
+                         'e.g. \'{"pose-graph": {"guided": false}}\'')
     args = ap.parse_args(argv)
     if args.synthetic_gallery:
-        g = synthetic_galleries(args.synthetic_gallery, args.seed, args.gallery_matcher)
+        g = synthetic_galleries(args.synthetic_gallery, args.seed, args.gallery_matcher, args.localizer_params)
         for name, v in g["median_position_error_m"].items():
-            print(f"{g['matcher']}+{name}: placed {g['placed'][name]}/{g['scans']}, median position error {v:.3f} m; "
-                  f"on the {g['common_scans']} scans both placed {g['median_position_error_common_m'][name]:.3f} m")
+            print(f"{g['matcher']}+{name}: placed {g['placed'][name]}/{g['scans']}, median position error {v:.3f} m "
+                  f"(aligned {g['median_aligned_error_m'][name]:.3f} m); "
+                  f"on the {g['common_scans']} scans both placed {g['median_position_error_common_m'][name]:.3f} m "
+                  f"(aligned {g['median_aligned_error_common_m'][name]:.3f} m)")
         if args.json:
             print(json.dumps(strict_json(g), allow_nan=False))
         return 0
     if args.gallery:
-        g = gallery(args.gallery, args.gallery_matchers.split(","), args.catalog, args.matcher_params)
+        g = gallery(args.gallery, args.gallery_matchers.split(","), args.catalog, args.matcher_params,
+                    args.localizer_params)
         for name, v in g["results"].items():
             print(f"{name:28s} placed {v['placed']}/{g['scans']}  converged pairs {v['pairs_converged']}/{v['pairs']}  "
                   f"median {v['median_position_error_m']:.3f} m  max {v['max_position_error_m']:.3f} m  "
+                  f"aligned median {v['median_aligned_error_m']:.3f} m  "
                   f"{v['seconds']:.1f} s  neighbour along-track bias {v['neighbour_along_track_bias_m']:+.3f} m")
         if args.json:
             print(json.dumps(strict_json(g), allow_nan=False))

@@ -278,10 +278,10 @@ def test_refinement_pulls_an_estimate_onto_the_walls():
     a, b = scan_at(A_XY, seed=1, range_noise_m=0.0), scan_at(B_XY, seed=2, range_noise_m=0.0)
     truth = np.array([B_XY[0] - A_XY[0], B_XY[1] - A_XY[1], 0.0])
     off = tuple(truth + [0.04, -0.03, math.radians(0.5)])
-    refined = np.array(fit_check(a, b, PFParams()).refine(off))
+    refined = np.array(fit_check(a, b, PFParams()).refine(off)[0])
     assert np.hypot(*(refined[:2] - truth[:2])) < 0.01 < np.hypot(*(np.array(off[:2]) - truth[:2]))
-    assert fit_check(a, b, PFParams(refine="none")).refine(off) == off
-    assert fit_check(a, b, PFParams(refine_max_shift_m=0.01)).refine(off) == off
+    assert fit_check(a, b, PFParams(refine="none")).refine(off) == (off, None)
+    assert fit_check(a, b, PFParams(refine_max_shift_m=0.01)).refine(off) == (off, None)
 
 
 def test_converged_matches_are_refined():
@@ -290,3 +290,18 @@ def test_converged_matches_are_refined():
     assert refined.converged and plain.converged
     err = [math.hypot(r.dx_m - (B_XY[0] - A_XY[0]), r.dy_m - (B_XY[1] - A_XY[1])) for r in (refined, plain)]
     assert err[0] < 0.03 and err[0] != err[1]
+
+
+def test_a_guess_narrows_the_search_to_its_window():
+    from cistern_archive.pipeline.contracts import MatchGuess
+
+    a, b = scan_at(A_XY, seed=1), scan_at(B_XY, seed=2)
+    truth = (B_XY[0] - A_XY[0], B_XY[1] - A_XY[1])
+    near = PFPairwiseMatcher().match(a, b, PFParams(), rng=np.random.default_rng(0),
+                                     guess=MatchGuess(truth[0] + 0.2, truth[1] - 0.1, 0.0, 0.5))
+    assert near.converged, near.reason
+    assert math.hypot(near.dx_m - truth[0], near.dy_m - truth[1]) < 0.05
+    away = PFPairwiseMatcher().match(a, b, PFParams(), rng=np.random.default_rng(0),
+                                     guess=MatchGuess(truth[0] + 1.5, truth[1] + 1.5, 0.0, 0.4))
+    assert_not_silent(away)
+    assert math.hypot(away.dx_m - truth[0], away.dy_m - truth[1]) > 1.0  # it searched the guess's window

@@ -20,8 +20,27 @@ def _matches(pairs, rng, sigma=0.02):
 
 def test_pairs_window_and_directions():
     loc = PoseGraphLocalizer()
-    assert loc.pairs(4, PoseGraphParams(window=2, directions="one")) == [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)]
+    one = PoseGraphParams(window=2, directions="one")
+    assert loc.pairs(4, one) == [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)]
+    assert loc.guided_pairs(_scans(4), [], one) == []
     assert len(loc.pairs(4, PoseGraphParams(window=2))) == 10
+
+
+def test_guided_pairs_take_their_guess_from_the_neighbours():
+    """Guided: neighbours first, then the pairs up to ``window`` apart with the neighbours' solution as
+    the guess; pairs the neighbours do not join get no guess."""
+    loc, p = PoseGraphLocalizer(), PoseGraphParams(window=3, directions="one", guided=True, guess_radius_m=0.4)
+    assert loc.pairs(5, p) == [(0, 1), (1, 2), (2, 3), (3, 4)]
+    neighbours = _matches([(0, 1), (1, 2), (2, 3)], np.random.default_rng(1), sigma=0.0)
+    second = loc.guided_pairs(_scans(5), neighbours, p)
+    assert [(i, j) for i, j, _ in second] == [(0, 2), (1, 3), (2, 4), (0, 3), (1, 4)]
+    for i, j, guess in second:
+        if 4 in (i, j):
+            assert guess is None
+        else:
+            assert guess.radius_m == 0.4
+            np.testing.assert_allclose([guess.dx_m, guess.dy_m, guess.dyaw_rad], [*(TRUTH[j] - TRUTH[i]), 0.0],
+                                       atol=1e-6)
 
 
 def test_recovers_positions_despite_a_wrong_match():

@@ -94,3 +94,47 @@ def test_validate_finds_the_bundled_catalog_clean(bundled_catalog):
     report = validate_catalog(bundled_catalog)
     assert report.ok, report.problems
     assert {r.record.id for r in report.records} >= {"lair-pool"}
+
+
+def test_guided_round_passes_guesses_to_matchers_that_take_them(bundled_catalog, tmp_path):
+    """``match_rounds``: the localizer's pairs, then its guided pairs; the guess reaches a matcher whose
+    ``match`` takes it and is recorded on the result; a matcher without it is matched globally."""
+    from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, accepts_guess
+    from cistern_archive.pipeline.runner import match_pair, match_rounds
+    from cistern_plugins.pf_pairwise import PFPairwiseMatcher
+    from tests.stage_plugins import CompassOnlyMatcher
+
+    seen = []
+
+    class Localizer:
+        def pairs(self, n, params):
+            return [(0, 1)]
+
+        def guided_pairs(self, scans, matches, params):
+            assert [(m.i, m.j) for m in matches] == [(0, 1)]
+            return [(0, 2, MatchGuess(1.0, 2.0, 0.1, 0.5)), (1, 2, None)]
+
+    class GuessingMatcher(CompassOnlyMatcher):
+        def match(self, reference, moving, params, *, rng, guess=None):
+            seen.append(guess)
+            return super().match(reference, moving, params, rng=rng)
+
+    assert accepts_guess(PFPairwiseMatcher()) and accepts_guess(GuessingMatcher())
+    assert not accepts_guess(CompassOnlyMatcher())
+    scans = pool_scans(bundled_catalog)
+    for matcher, expect in ((GuessingMatcher(), MatchGuess(1.0, 2.0, 0.1, 0.5)), (CompassOnlyMatcher(), None)):
+        seen.clear()
+        matches = match_rounds(scans, Localizer(), None, lambda i, j, g: match_pair(
+            matcher, matcher.Params(), scans, 1, i, j, g))
+        assert [(m.i, m.j) for m in matches] == [(0, 1), (0, 2), (1, 2)]
+        assert all(isinstance(m, MatchResult) for m in matches)
+        assert matches[1].guess == expect and matches[2].guess is None
+        assert seen == ([None, expect, None] if expect else [])
+
+
+def pool_scans(catalog: Path):
+    from cistern_archive.pipeline.runner import load_scan
+    from cistern_archive.sonar.segmentation import segment
+
+    loaded = validate_record(catalog / "sites" / "lair-pool.yaml", catalog)
+    return [segment(load_scan(loaded, ref), loaded.record.segmentation) for ref in loaded.record.scans]

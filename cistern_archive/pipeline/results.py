@@ -48,6 +48,8 @@ class PairResult(Model):
     iterations: int
     seconds: float
     reason: str = ""
+    guess: list[float] | None = None
+    """``[dx_m, dy_m, dyaw_rad, radius_m]`` of the window the matcher searched (guided pairs only)."""
 
 
 class DimensionResult(Model):

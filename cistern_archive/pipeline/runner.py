@@ -256,7 +256,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
     result.pairs = [
         PairResult(i=m.i, j=m.j, dx_m=m.dx_m, dy_m=m.dy_m, dyaw_rad=m.dyaw_rad, weight=_finite(m.weight) or 0.0,
-                   converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason)
+                   converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason,
+                   guess=None if m.guess is None else [m.guess.dx_m, m.guess.dy_m, m.guess.dyaw_rad, m.guess.radius_m])
         for m in build.matches
     ]
     if build.table is not None:

@@ -44,7 +44,6 @@ from cistern_plugins.alignment import (
     ReferenceModel,
     scan_points,
     too_few_points,
-    transform,
     verdict,
 )
 from cistern_plugins.icp import fit_covariance, run_icp
@@ -221,7 +220,7 @@ class CorrelativeMatcher:
                 pose = out.pose
         quality = model.assess_pair(moving, pose, p.limits())
         reason = reason or verdict(quality, p.limits())
-        cov = fit_covariance(model, transform(src, pose), p.inlier_distance_m, quality.rms_m)
+        cov = fit_covariance(model, src, pose, p.inlier_distance_m, quality.rms_m)
         return _result(pose, float(scores[0]), not reason, reason, iterations, start, cov)
 
 

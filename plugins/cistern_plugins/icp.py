@@ -120,13 +120,19 @@ class ICPMatcher:
             i=-1, j=-1, dx_m=float(out.pose[0]), dy_m=float(out.pose[1]), dyaw_rad=float(out.pose[2]),
             weight=quality.inlier_ratio, converged=not reason, iterations=out.iterations,
             seconds=time.perf_counter() - start, reason=reason,
-            covariance=fit_covariance(model, transform(src, out.pose), p.inlier_distance_m, quality.rms_m),
+            covariance=fit_covariance(model, src, out.pose, p.inlier_distance_m, quality.rms_m),
         )
 
 
-def fit_covariance(model: ReferenceModel, moved: np.ndarray, inlier_distance_m: float, rms_m: float) -> np.ndarray | None:
-    """Covariance of (x, y, theta) from the point-to-line inliers of a final placement, or ``None``."""
+def fit_covariance(model: ReferenceModel, src: np.ndarray, pose: np.ndarray, inlier_distance_m: float,
+                   rms_m: float) -> np.ndarray | None:
+    """Covariance of (x, y, theta) from the point-to-line inliers of the moving points ``src`` placed by
+    ``pose``, or ``None``. θ turns the moving scan about its own sonar (``pose[:2]``), as the pose-graph
+    factors do, so the lever arms are the placed points' offsets from it."""
+    moved = transform(src, pose)
     dist, idx = model.tree.query(moved, k=1)
     inl = dist <= inlier_distance_m
-    return covariance_from_fit(moved[inl], model.normals[idx[inl]], rms_m) if inl.sum() >= 3 else None
+    if inl.sum() < 3:
+        return None
+    return covariance_from_fit(moved[inl] - np.asarray(pose[:2]), model.normals[idx[inl]], rms_m)
 

@@ -40,7 +40,6 @@ from cistern_plugins.alignment import (
     robust_error,
     scan_points,
     too_few_points,
-    transform,
     transform_many,
     verdict,
 )
@@ -136,7 +135,7 @@ class ParticleICPMatcher:
         reason = reason or verdict(quality, p.limits())
         history = MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snaps), tuple(snap_its))
         cov = np.cov(poses.T, aweights=w) if len(poses) > 3 else None
-        fit_cov = fit_covariance(model, transform(src, estimate), p.inlier_distance_m, quality.rms_m)
+        fit_cov = fit_covariance(model, src, estimate, p.inlier_distance_m, quality.rms_m)
         if cov is not None and fit_cov is not None:
             cov = cov + fit_cov
         return MatchResult(

@@ -43,7 +43,8 @@ Decisions where the paper's text is ambiguous
   ``w_μ ≥ tau_pw``, otherwise after ``n_iterations`` the pair is reported not converged with the reason.
 * **Output** – ``dx, dy`` is the mean particle position after the last resampling (``p_j - p_i``),
   ``dyaw`` the circular mean of θ, ``weight`` the final ``w_μ``, ``covariance`` the particles'
-  covariance of (x, y, θ).
+  covariance of (x, y, θ); a converged estimate is then refined (``refine``, below) and reported with
+  the covariance of that fit.
 
 Defaults and the paper
 ----------------------
@@ -71,6 +72,15 @@ map_occupied="cone", verify=False, verify_fit=False``. The departures:
   to 22 % of their wall points in the other scan's free space (smeared echoes at grazing incidence).
 * ``min_informative < 1`` (off by default) normalises the weight by the beams that land where ``m_i``
   has evidence instead of by all beams; ``map_free`` narrows the free-space cone of ``m_i``.
+* ``refine="point-to-line"`` – a verified estimate is refined by trimmed point-to-line ICP of the two
+  scans' echoes (pairs within ``refine_correspondence_m``, the closest ``refine_trim_fraction`` kept)
+  and reported with that fit's covariance, unless the refinement moves it more than
+  ``refine_max_shift_m`` (see "Limits"); the fit check then judges the refined estimate.
+* ``guess`` – a localizer may ask for a pair with a
+  :class:`~cistern_archive.pipeline.contracts.MatchGuess`; the particles then start in the square
+  ``±radius_m`` around it (:class:`SearchWindow`) and θ around its heading correction. The ambiguity
+  search still covers an ``L_init`` square around the guess: a window as small as the guess's cannot
+  hold a rival ``ambiguity_radius_m`` away, and a wrong match inside it would pass.
 * ``restarts > 0`` (off by default): when the filter from the uniform start fails (not converged or
   rejected by verification), up to that many filters are restarted around the best positions of the
   coarse score grid that verification uses (:func:`grid_modes`), and the first one that converges and
@@ -85,17 +95,21 @@ is not observable from the scans, whatever the measurement model. The filter the
 the axis (eq. 5 not met) or collapses on one of the equally good positions, which verification rejects
 as ambiguous (or, when the rival scores just under ``ambiguity_ratio``, lets through an estimate
 decimetres to metres off). Closer stations do not cure this; features in range do (the last, plain
-8 m of the demo ``water-gallery`` show it). Sloping walls seen through the 35° vertical lobe (bell-shaped cisterns) return the
-leading edge of a smear whose range depends on the distance to the wall, so two scans of one depth
-see slightly different outlines and their matches are biased by 0.1–0.3 m. On the demo
-``water-gallery`` (rough walls echoing at grazing incidence) converged neighbour matches are about 4 cm
-short per 2 m step. The bias is not in the filter's dynamics: the mean per-beam weight
-at the true heading, scanned along the tunnel, peaks as far short (−3.9 cm on average over the 18
-neighbour pairs; −2.9 to −5.3 cm with the ray-cast model and every ``map_occupied`` or
-``unknown_score``), and a plain truncated point-to-point fit of the two scans' echo points peaks 3.5 cm
-short (such a fit is itself slightly biased short in a narrow tunnel, so part of the bias may come from
-the geometry of the matching rather than from the echoes). Lengthening every echo range by 2–4 cm removes a quarter to a third of it; a σc of 0.05 m instead
-of 2 r_c about half, but then too few pairs converge to chain the gallery.
+8 m of the demo ``water-gallery`` show it). Sloping walls seen through the 35° vertical lobe
+(bell-shaped cisterns) return the leading edge of a smear whose range depends on the distance to the
+wall, so two scans of one depth see slightly different outlines and their matches are biased by
+0.1–0.3 m.
+
+The likelihood field is also biased along a gallery, towards the reference scan. A scan samples a wall
+at one echo per beam, densely near the sonar and sparsely where its beams graze the wall (every
+``d Δφ / sin² α`` for a wall ``d`` away met at ``α``), and the score counts the moving scan's echoes
+that land on the reference's sampled walls: moving the scans towards each other lays the dense parts
+on each other and scores higher. On the demo ``water-gallery`` the converged neighbour matches were
+3.9 cm short per 2 m step on average, and 2.6 cm short with the simulator's exact axial ranges in place
+of the segmented echoes, so the bias is in the score, not in the echoes; it adds up along the gallery
+(0.19 m median scan error after alignment). ``refine`` removes it: the verified estimate is refined by
+point-to-line ICP, whose distances to the reference's local wall lines do not depend on how densely the
+walls are sampled (−0.5 cm per step, 0.04 m median scan error; ``benchmarks/RESULTS.md``).
 """
 
 from __future__ import annotations
@@ -112,10 +126,10 @@ from pydantic import Field
 
 from cistern_archive.grid.evidence import DenseMap, SonarModel, dense_scan_map
 from cistern_archive.grid.raycast import FAR_M, OccupancyLookup
-from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import MatchGuess, MatchHistory, MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
-from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, scan_points, verdict
-from cistern_plugins.icp import run_icp
+from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, scan_points, transform, verdict
+from cistern_plugins.icp import fit_covariance, run_icp
 
 
 class PFParams(ConvergenceParams):
@@ -135,6 +149,7 @@ class PFParams(ConvergenceParams):
     chi_w: float = Field(2.0 / 7.0, gt=0, le=1, description="smoothing of the weight average (eq. 6)")
     chi_sigma: float = Field(2.0 / 5.0, gt=0, le=1, description="smoothing of the std average (eq. 5)")
     tau_pw: float = Field(0.25, ge=-1, le=1, description="weight threshold of eq. 6 (mean per-beam units)")
+
     measurement_model: Literal["raycast", "distance-field"] = "distance-field"
     resample_weighting: Literal["shifted", "exponential"] = "exponential"
     sharpness: float = Field(40.0, gt=0, description="exponent scale of 'exponential' resampling")
@@ -190,6 +205,36 @@ class PFParams(ConvergenceParams):
     )
 
 
+@dataclass(frozen=True)
+class SearchWindow:
+    """The square of positions the filter searches: centre ``(x_m, y_m)``, half side ``half_m``, and the
+    centre ``theta_rad`` of the heading correction's initial distribution."""
+
+    x_m: float
+    y_m: float
+    half_m: float
+    theta_rad: float = 0.0
+
+    @classmethod
+    def initial(cls, p: PFParams) -> "SearchWindow":
+        """The paper's ``L_init`` square around the reference sonar, θ around the compass difference."""
+        return cls(0.0, 0.0, 0.5 * p.l_init_m)
+
+    @classmethod
+    def around(cls, guess: MatchGuess) -> "SearchWindow":
+        return cls(guess.dx_m, guess.dy_m, guess.radius_m, guess.dyaw_rad)
+
+    def offset(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Chebyshev distance of positions from the centre (the square's 'radius' at them)."""
+        return np.maximum(np.abs(np.asarray(x) - self.x_m), np.abs(np.asarray(y) - self.y_m))
+
+    def describe(self) -> str:
+        if self.x_m == 0.0 and self.y_m == 0.0:
+            return f"the {2 * self.half_m:g} m search square; the true offset may lie outside it (raise l_init_m)"
+        return (f"the ±{self.half_m:g} m search window around the guess ({self.x_m:.2f}, {self.y_m:.2f}); "
+                "the true offset may lie outside it")
+
+
 @dataclass(frozen=True, eq=False)
 class _Beams:
     """The moving scan's beams used for weighting: range and map-frame direction at θ = 0."""
@@ -221,9 +266,15 @@ class PFPairwiseMatcher:
 
     # ------------------------------------------------------------------------------------ API
     def match(
-        self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator
+        self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator,
+        guess: MatchGuess | None = None,
     ) -> MatchResult:
-        """Locate ``moving`` in the map of ``reference`` (Table II); ``i = j = -1``."""
+        """Locate ``moving`` in the map of ``reference`` (Table II); ``i = j = -1``.
+
+        Without a ``guess`` the particles start uniform in the ``L_init`` square around the origin;
+        with one, in the square ``±guess.radius_m`` around the guessed offset, θ around its heading
+        correction, and verification judges ambiguity within that square (:class:`SearchWindow`).
+        """
         p = params if isinstance(params, PFParams) else PFParams.model_validate(params.model_dump())
         start = time.perf_counter()
         refusal = _refuse(reference, moving, p)
@@ -236,7 +287,8 @@ class PFPairwiseMatcher:
                 seconds=time.perf_counter() - start, weight=float("nan"),
             )
         beams = _select_beams(moving, p.max_beams)
-        return _run_filter(model, beams, p, rng, start, fit_check(reference, moving, p))
+        window = SearchWindow.around(guess) if guess is not None else SearchWindow.initial(p)
+        return _run_filter(model, beams, p, rng, start, fit_check(reference, moving, p), window)
 
     # ------------------------------------------------------------------------------------ map
     def _map(self, reference: RangeScan, p: PFParams) -> _MapModel:
@@ -406,11 +458,11 @@ class _History:
         )
 
 
-def _initial_particles(n: int, p: PFParams, rng: np.random.Generator) -> np.ndarray:
-    """Uniform in the L_init × L_init square around the origin; θ around the compass difference."""
-    half = 0.5 * p.l_init_m
-    xy = rng.uniform(-half, half, size=(n, 2))
-    theta = rng.normal(0.0, math.radians(p.theta_init_std_deg), size=(n, 1))
+def _initial_particles(n: int, p: PFParams, rng: np.random.Generator, window: SearchWindow) -> np.ndarray:
+    """Uniform in the search square (the L_init × L_init square around the origin without a guess); θ
+    around the window's heading (the compass difference without a guess)."""
+    xy = rng.uniform(-window.half_m, window.half_m, size=(n, 2)) + np.array([window.x_m, window.y_m])
+    theta = rng.normal(window.theta_rad, math.radians(p.theta_init_std_deg), size=(n, 1))
     return np.hstack([xy, theta])
 
 
@@ -454,10 +506,12 @@ class PairFit:
             why = verdict(quality, replace(limits, max_violation_ratio=p.partial_max_violation))
         return f"fit check: {why}" if why else ""
 
-    def refine(self, estimate: tuple[float, float, float]) -> tuple[float, float, float]:
+    def refine(self, estimate: tuple[float, float, float]) -> tuple[tuple[float, float, float], np.ndarray | None]:
         """``estimate`` refined by trimmed point-to-line ICP of the moving scan's echoes against the
-        reference scan's (:func:`cistern_plugins.icp.run_icp`), or unchanged when ``refine`` is off, the
-        scans have too few echoes, or the refinement moves farther than ``refine_max_shift_m``.
+        reference scan's (:func:`cistern_plugins.icp.run_icp`), with the covariance of the point-to-line
+        fit (:func:`cistern_plugins.icp.fit_covariance`: along a plain gallery it is long along the
+        axis, which a pose graph needs to know); unchanged with no covariance when ``refine`` is off,
+        the scans have too few echoes, or the refinement moves farther than ``refine_max_shift_m``.
 
         The likelihood field scores how many beams land on the sampled walls of ``m_i``; walls are
         sampled densely near each sonar and sparsely far from it, so the score favours placements that
@@ -467,17 +521,19 @@ class PairFit:
         """
         p = self.p
         if p.refine == "none" or self.model.tree is None or len(self.model.points) < 3:
-            return estimate
+            return estimate, None
         src = scan_points(self.moving)
         if len(src) < 3:
-            return estimate
+            return estimate, None
         out = run_icp(self.model, src, np.array(estimate), variant="point-to-line",
                       max_iterations=p.refine_iterations, max_correspondence_m=p.refine_correspondence_m,
                       trim_fraction=p.refine_trim_fraction, tolerance_m=1e-4)
         shift = math.hypot(out.pose[0] - estimate[0], out.pose[1] - estimate[1])
         if shift > p.refine_max_shift_m:
-            return estimate
-        return float(out.pose[0]), float(out.pose[1]), float(out.pose[2])
+            return estimate, None
+        rms = self.model.assess(transform(src, out.pose), p.inlier_distance_m).rms_m
+        covariance = fit_covariance(self.model, src, out.pose, p.inlier_distance_m, rms)
+        return (float(out.pose[0]), float(out.pose[1]), float(out.pose[2])), covariance
 
 
 def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> PairFit:
@@ -497,19 +553,20 @@ def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> PairFit:
 
 def _run_filter(
     model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, start: float,
-    check: PairFit,
+    check: PairFit, window: SearchWindow,
 ) -> MatchResult:
     """Table II from a uniform start; if it fails, up to ``restarts`` filters started at the best
     positions of the coarse score grid (:func:`grid_modes`). The first run that converges and passes
     :func:`verify_unique` and ``check`` (:func:`fit_check`) is reported; if none does, the first run and
     its reason."""
-    first = _filter(model, beams, p, rng, _initial_particles(p.n_particles * p.init_oversample, p, rng), check)
+    first = _filter(model, beams, p, rng, _initial_particles(p.n_particles * p.init_oversample, p, rng, window),
+                    check, window)
     outcome = first
     if not first.converged and p.restarts > 0 and first.iterations > 0:
-        for x, y in grid_modes(model, beams, 0.0, p, p.restarts):
+        for x, y in grid_modes(model, beams, window.theta_rad, p, p.restarts, window):
             xy = np.array([x, y]) + rng.normal(0.0, p.verify_step_m / 2.0, size=(p.n_particles, 2))
-            theta = rng.normal(0.0, math.radians(p.theta_init_std_deg), size=(p.n_particles, 1))
-            attempt = _filter(model, beams, p, rng, np.hstack([xy, theta]), check)
+            theta = rng.normal(window.theta_rad, math.radians(p.theta_init_std_deg), size=(p.n_particles, 1))
+            attempt = _filter(model, beams, p, rng, np.hstack([xy, theta]), check, window)
             if attempt.converged:
                 outcome = attempt
                 break
@@ -524,7 +581,7 @@ def _run_filter(
 
 
 def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generator, particles: np.ndarray,
-            check: PairFit) -> _Outcome:
+            check: PairFit, window: SearchWindow) -> _Outcome:
     """Table II: propagate, weigh, average (eqs. 5–6), resample, until converged or Num_Iterations;
     then :func:`verify_unique` if ``verify`` and ``check``."""
     noise = np.array([p.sigma_n_xy_m, p.sigma_n_xy_m, math.radians(p.sigma_n_theta_deg)])
@@ -554,28 +611,29 @@ def _filter(model: _MapModel, beams: _Beams, p: PFParams, rng: np.random.Generat
     theta = math.atan2(float(np.sin(particles[:, 2]).mean()), float(np.cos(particles[:, 2]).mean()))
     dx, dy = float(particles[:, 0].mean()), float(particles[:, 1].mean())
     if converged and p.verify:
-        reason = verify_unique(model, beams, (dx, dy, theta), p)
+        reason = verify_unique(model, beams, (dx, dy, theta), p, window)
         converged = not reason
+    covariance = np.cov(particles.T)
     if converged:
-        dx, dy, theta = check.refine((dx, dy, theta))
+        (dx, dy, theta), fit = check.refine((dx, dy, theta))
+        covariance = covariance if fit is None else fit
         reason = check((dx, dy, theta))
         converged = not reason
     return _Outcome(
         estimate=(dx, dy, theta), weight=w_avg, converged=converged, iterations=iterations, reason=reason,
-        covariance=np.cov(particles.T), history=history.finish(iteration, particles, w),
+        covariance=covariance, history=history.finish(iteration, particles, w),
     )
 
 
-def _grid_scores(model: _MapModel, beams: _Beams, theta: float, p: PFParams,
+def _grid_scores(model: _MapModel, beams: _Beams, theta: float, p: PFParams, window: SearchWindow,
                  extra: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Positions of the ``L_init`` square on a ``verify_step_m`` grid (plus ``extra``, last) and their
+    """Positions of the search square on a ``verify_step_m`` grid (plus ``extra``, last) and their
     mean per-beam scores in the likelihood field smoothed to that step, the heading fixed at ``theta``."""
     if beams.ranges.size > p.verify_beams:
         keep = np.linspace(0, beams.ranges.size - 1, p.verify_beams).round().astype(np.int64)
         beams = _Beams(ranges=beams.ranges[keep], cos=beams.cos[keep], sin=beams.sin[keep])
-    half = 0.5 * p.l_init_m
-    axis = np.arange(-half, half + 1e-9, p.verify_step_m)
-    gx, gy = np.meshgrid(axis, axis)
+    axis = np.arange(-window.half_m, window.half_m + 1e-9, p.verify_step_m)
+    gx, gy = np.meshgrid(axis + window.x_m, axis + window.y_m)
     cand = np.column_stack([gx.ravel(), gy.ravel()])
     if extra is not None:
         cand = np.vstack([cand, np.array(extra)[None, :]])
@@ -586,11 +644,13 @@ def _grid_scores(model: _MapModel, beams: _Beams, theta: float, p: PFParams,
     return cand, model.coarse_flat[flat].mean(axis=1, dtype=np.float64)
 
 
-def grid_modes(model: _MapModel, beams: _Beams, theta: float, p: PFParams, k: int) -> list[tuple[float, float]]:
-    """The ``k`` best-scoring grid positions at least ``ambiguity_radius_m`` apart (positive scores only)."""
-    cand, score = _grid_scores(model, beams, theta, p)
-    half = 0.5 * p.l_init_m - p.verify_step_m
-    score = np.where(np.abs(cand).max(axis=1) <= half, score, -np.inf)
+def grid_modes(model: _MapModel, beams: _Beams, theta: float, p: PFParams, k: int,
+               window: SearchWindow | None = None) -> list[tuple[float, float]]:
+    """The ``k`` best-scoring grid positions of the search square (by default the ``L_init`` square), at
+    least ``ambiguity_radius_m`` apart and not on its edge (positive scores only)."""
+    window = window or SearchWindow.initial(p)
+    cand, score = _grid_scores(model, beams, theta, p, window)
+    score = np.where(window.offset(cand[:, 0], cand[:, 1]) <= window.half_m - p.verify_step_m, score, -np.inf)
     modes: list[tuple[float, float]] = []
     for _ in range(k):
         best = int(np.argmax(score))
@@ -611,28 +671,30 @@ def crossing_fraction(model: _MapModel, beams: _Beams, estimate: tuple[float, fl
     return float(np.mean(np.isfinite(hit) & (hit < beams.ranges - p.delta_max_m)))
 
 
-def verify_unique(model: _MapModel, beams: _Beams, estimate: tuple[float, float, float], p: PFParams) -> str:
+def verify_unique(model: _MapModel, beams: _Beams, estimate: tuple[float, float, float], p: PFParams,
+                  window: SearchWindow | None = None) -> str:
     """Why a converged estimate cannot be trusted ("" if it can).
 
     The particles can collapse onto one of several equally good places (a straight gallery, a
     symmetric room, a true offset outside the search square), and eqs. 5–6 cannot tell. First, more
     than ``max_crossing`` of the beams may not cross a wall of ``m_i`` (:func:`crossing_fraction`).
-    Then, with the heading
-    fixed at the estimate, every position of the ``L_init`` square on a ``verify_step_m`` grid is scored
-    with the likelihood field smoothed to that step; the estimate is rejected when a position more than
+    Then, with the heading fixed at the estimate, every position of an ``L_init`` square (around the
+    window's centre: the origin, or a guess) on a ``verify_step_m`` grid is scored with the likelihood
+    field smoothed to that step; the estimate is rejected when a position more than
     ``ambiguity_radius_m`` away scores at least ``ambiguity_ratio`` of the estimate's score, or when the
-    estimate lies within one step of the square's edge.
+    estimate lies within one step of the edge of the searched square (``window``: the ``L_init`` square
+    by default, the guess's window for a guided match).
     """
     dx, dy, theta = estimate
-    half = 0.5 * p.l_init_m
-    if max(abs(dx), abs(dy)) > half - p.verify_step_m:
-        return (f"estimate ({dx:.2f}, {dy:.2f}) m is at the edge of the {p.l_init_m:g} m search square; "
-                "the true offset may lie outside it (raise l_init_m)")
+    window = window or SearchWindow.initial(p)
+    if window.offset(dx, dy) > window.half_m - p.verify_step_m:
+        return f"estimate ({dx:.2f}, {dy:.2f}) m is at the edge of {window.describe()}"
     crossing = crossing_fraction(model, beams, estimate, p)
     if crossing > p.max_crossing:
         return (f"{100 * crossing:.0f} % of the beams pass through walls of the reference map before their "
                 f"echo (more than max_crossing={p.max_crossing:g}): the scans contradict each other here")
-    cand, score = _grid_scores(model, beams, theta, p, extra=(dx, dy))
+    around = replace(window, half_m=max(window.half_m, 0.5 * p.l_init_m))
+    cand, score = _grid_scores(model, beams, theta, p, around, extra=(dx, dy))
     best = max(float(score[-1]), float(score[:-1][np.hypot(cand[:-1, 0] - dx, cand[:-1, 1] - dy) <= p.verify_step_m].max(initial=-1.0)))
     far = np.hypot(cand[:-1, 0] - dx, cand[:-1, 1] - dy) > p.ambiguity_radius_m
     if not far.any() or best <= 0:

@@ -4,6 +4,16 @@ McVicker et al. localise from neighbouring pairs only (eqs. 7–10) and name mat
 as future work. This localizer asks the matcher for every pair within ``window`` scans (both
 directions, or one), and solves for all positions and yaw corrections at once.
 
+Guided matching (``guided``, off by default): the neighbours are matched first
+(:meth:`PoseGraphLocalizer.pairs`); their graph is solved, and every pair 2 to ``window`` apart is then
+matched with a :class:`~cistern_archive.pipeline.contracts.MatchGuess`, the relative pose of the two
+scans in that solution and a ``±guess_radius_m`` window (:meth:`PoseGraphLocalizer.guided_pairs`), as
+SLAM systems search for loop closures around their odometry; a pair whose scans the neighbours do not
+join is matched without a guess. Measured on the demo ``water-gallery`` and on 20 synthetic galleries
+it places no more scans and is no more accurate than matching every pair from scratch
+(``benchmarks/RESULTS.md``): in the demo gallery scans two or more stations apart share too few echoes
+to be matched either way, and in the synthetic ones the pairs converge without a guess.
+
 Model: one ``Pose2`` variable per scan, ``X_k = (x_k, y_k, c_k)`` with ``(x_k, y_k)`` the map-frame
 position and ``c_k`` the correction added to the compass yaw. A converged match ``(i, j)`` measures
 ``d_ij`` in scan i's compass frame and ``dyaw``; with i's correction ``c_i`` the map-frame
@@ -34,7 +44,7 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams
+from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
 from cistern_archive.sonar.scan import RangeScan
 
 
@@ -43,6 +53,8 @@ class PoseGraphParams(StageParams):
 
     window: int = Field(3, ge=1)
     directions: Literal["both", "one"] = "both"
+    guided: bool = False
+    guess_radius_m: float = Field(0.5, gt=0)
     robust: Literal["huber", "cauchy", "none"] = "huber"
     robust_k: float = Field(1.345, gt=0)
     sigma_xy_m: float = Field(0.05, gt=0)
@@ -61,22 +73,39 @@ class PoseGraphLocalizer:
     Params: ClassVar[type[StageParams]] = PoseGraphParams
 
     def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:
-        """Every pair within ``window`` scans of each other, nearest first; both directions unless ``one``."""
+        """Every pair within ``window`` scans of each other, nearest first; both directions unless ``one``.
+        When ``guided``, only the neighbours (the rest come from :meth:`guided_pairs`)."""
         p = _params(params)
-        out: list[tuple[int, int]] = []
-        for gap in range(1, p.window + 1):
-            for i in range(n_scans - gap):
-                out.append((i, i + gap))
-                if p.directions == "both":
-                    out.append((i + gap, i))
+        return _pairs(n_scans, range(1, (1 if p.guided else p.window) + 1), p)
+
+    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
+                     params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
+        """The pairs 2 to ``window`` scans apart, each with the guess of the neighbours' solution (none
+        when ``guided`` is off, as :meth:`pairs` then asked for them all)."""
+        p = _params(params)
+        if not p.guided:
+            return []
+        n = len(scans)
+        good = _usable(matches, n)
+        reference = _reference(n, good)
+        solved: dict[int, gtsam.Pose2] = {}
+        if reference >= 0:
+            _, result, kept = _solve_gated(n, good, reference, p)
+            solved = {k: result.atPose2(k) for k in _spanning_tree(n, kept, reference)}
+        out: list[tuple[int, int, MatchGuess | None]] = []
+        for i, j in _pairs(n, range(2, p.window + 1), p):
+            guess = None
+            if i in solved and j in solved:
+                rel = solved[i].between(solved[j])
+                guess = MatchGuess(rel.x(), rel.y(), rel.theta(), p.guess_radius_m)
+            out.append((i, j, guess))
         return out
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
         """Place every scan connected to the reference by converged matches."""
         p = _params(params)
         n = len(scans)
-        good = [m for m in matches if m.converged and 0 <= m.i < n and 0 <= m.j < n and m.i != m.j
-                and np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all()]
+        good = _usable(matches, n)
         reference = _reference(n, good)
         yaw = np.array([s.yaw_rad for s in scans], dtype=np.float64)
         if reference < 0:
@@ -102,6 +131,22 @@ class PoseGraphLocalizer:
         reasons = tuple("" if placed[k] else f"no converged path of matches to reference scan {reference}"
                         for k in range(n))
         return Poses(xy, out_yaw, placed, reasons, reference, cov)
+
+
+def _pairs(n_scans: int, gaps: range, p: PoseGraphParams) -> list[tuple[int, int]]:
+    out: list[tuple[int, int]] = []
+    for gap in gaps:
+        for i in range(n_scans - gap):
+            out.append((i, i + gap))
+            if p.directions == "both":
+                out.append((i + gap, i))
+    return out
+
+
+def _usable(matches: Sequence[MatchResult], n: int) -> list[MatchResult]:
+    """The converged matches between two distinct scans of the site with a finite estimate."""
+    return [m for m in matches if m.converged and 0 <= m.i < n and 0 <= m.j < n and m.i != m.j
+            and np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all()]
 
 
 def _solve_gated(n: int, good: list[MatchResult], reference: int, p: PoseGraphParams):
