@@ -41,3 +41,14 @@ def test_no_overlap_rarely_converges():
     flags = [ParticleICPMatcher().match(p.reference, p.moving, ParticleICPParams(), rng=rng).converged
              for p in (simulated_pair(rng, overlapping=False) for _ in range(5))]
     assert sum(flags) <= 1
+
+
+def test_settled_estimates_are_refined_by_point_to_line_icp():
+    pair = _pair(3)
+    truth = np.array([pair.dx_m, pair.dy_m])
+    m = ParticleICPMatcher()
+    refined = m.match(pair.reference, pair.moving, ParticleICPParams(), rng=np.random.default_rng(0))
+    plain = m.match(pair.reference, pair.moving, ParticleICPParams(refine="none"), rng=np.random.default_rng(0))
+    assert refined.converged and plain.converged
+    err = [np.hypot(*(np.array([r.dx_m, r.dy_m]) - truth)) for r in (refined, plain)]
+    assert err[0] < 0.03 and err[0] != err[1]

@@ -46,7 +46,7 @@ from cistern_plugins.alignment import (
     too_few_points,
     verdict,
 )
-from cistern_plugins.icp import fit_covariance, run_icp
+from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
 
 class CorrelativeParams(ConvergenceParams):
@@ -213,11 +213,10 @@ class CorrelativeMatcher:
         pose = best
         iterations = len(nodes)
         if p.refine_iterations:
-            out = run_icp(model, src, best, variant="point-to-line", max_iterations=p.refine_iterations,
-                          max_correspondence_m=p.inlier_distance_m + 2 * p.sigma_m, trim_fraction=0.8,
-                          tolerance_m=1e-4)
-            if math.hypot(*(out.pose[:2] - best[:2])) <= 4 * p.resolution_m:
-                pose = out.pose
+            refined = refine_point_to_line(model, src, best, iterations=p.refine_iterations,
+                                           correspondence_m=p.inlier_distance_m + 2 * p.sigma_m, trim_fraction=0.8,
+                                           max_shift_m=4 * p.resolution_m)
+            pose = best if refined is None else refined
         quality = model.assess_pair(moving, pose, p.limits())
         reason = reason or verdict(quality, p.limits())
         cov = fit_covariance(model, src, pose, p.inlier_distance_m, quality.rms_m)

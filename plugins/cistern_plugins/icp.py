@@ -87,6 +87,23 @@ def run_icp(model: ReferenceModel, src: np.ndarray, pose0: np.ndarray, *, varian
     return ICPOutcome(pose, max_iterations, False)
 
 
+def refine_point_to_line(model: ReferenceModel, src: np.ndarray, pose: np.ndarray, *, iterations: int,
+                         correspondence_m: float, trim_fraction: float, max_shift_m: float) -> np.ndarray | None:
+    """``pose`` refined by trimmed point-to-line ICP (:func:`run_icp`), or ``None`` when the refinement
+    moves it farther than ``max_shift_m`` (it slid away along a corridor or onto another wall).
+
+    The search matchers (pf-pairwise, particle-icp, correlative) find the right basin on a coarse score;
+    point-to-line distances to the reference's local wall lines then settle the pose without the pull a
+    point score has towards where both scans sample their walls densely (``benchmarks/RESULTS.md``).
+    """
+    out = run_icp(model, src, np.asarray(pose, dtype=np.float64), variant="point-to-line",
+                  max_iterations=iterations, max_correspondence_m=correspondence_m, trim_fraction=trim_fraction,
+                  tolerance_m=1e-4)
+    if math.hypot(out.pose[0] - pose[0], out.pose[1] - pose[1]) > max_shift_m:
+        return None
+    return out.pose
+
+
 def _cycling(poses: np.ndarray, tolerance_m: float) -> bool:
     """Whether the last poses only hop between correspondence sets within ``tolerance_m`` (a settled
     oscillation, common with trimming on noisy scans)."""

@@ -129,7 +129,7 @@ from cistern_archive.grid.raycast import FAR_M, OccupancyLookup
 from cistern_archive.pipeline.contracts import MatchGuess, MatchHistory, MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
 from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, scan_points, transform, verdict
-from cistern_plugins.icp import fit_covariance, run_icp
+from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
 
 class PFParams(ConvergenceParams):
@@ -508,7 +508,7 @@ class PairFit:
 
     def refine(self, estimate: tuple[float, float, float]) -> tuple[tuple[float, float, float], np.ndarray | None]:
         """``estimate`` refined by trimmed point-to-line ICP of the moving scan's echoes against the
-        reference scan's (:func:`cistern_plugins.icp.run_icp`), with the covariance of the point-to-line
+        reference scan's (:func:`cistern_plugins.icp.refine_point_to_line`), with the covariance of the point-to-line
         fit (:func:`cistern_plugins.icp.fit_covariance`: along a plain gallery it is long along the
         axis, which a pose graph needs to know); unchanged with no covariance when ``refine`` is off,
         the scans have too few echoes, or the refinement moves farther than ``refine_max_shift_m``.
@@ -525,15 +525,14 @@ class PairFit:
         src = scan_points(self.moving)
         if len(src) < 3:
             return estimate, None
-        out = run_icp(self.model, src, np.array(estimate), variant="point-to-line",
-                      max_iterations=p.refine_iterations, max_correspondence_m=p.refine_correspondence_m,
-                      trim_fraction=p.refine_trim_fraction, tolerance_m=1e-4)
-        shift = math.hypot(out.pose[0] - estimate[0], out.pose[1] - estimate[1])
-        if shift > p.refine_max_shift_m:
+        pose = refine_point_to_line(self.model, src, np.array(estimate), iterations=p.refine_iterations,
+                                    correspondence_m=p.refine_correspondence_m,
+                                    trim_fraction=p.refine_trim_fraction, max_shift_m=p.refine_max_shift_m)
+        if pose is None:
             return estimate, None
-        rms = self.model.assess(transform(src, out.pose), p.inlier_distance_m).rms_m
-        covariance = fit_covariance(self.model, src, out.pose, p.inlier_distance_m, rms)
-        return (float(out.pose[0]), float(out.pose[1]), float(out.pose[2])), covariance
+        rms = self.model.assess(transform(src, pose), p.inlier_distance_m).rms_m
+        covariance = fit_covariance(self.model, src, pose, p.inlier_distance_m, rms)
+        return (float(pose[0]), float(pose[1]), float(pose[2])), covariance
 
 
 def fit_check(reference: RangeScan, moving: RangeScan, p: PFParams) -> PairFit:
