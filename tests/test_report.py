@@ -304,3 +304,14 @@ def test_specks_are_dropped_from_the_mesh():
     assert kept.bounds[0] <= x0 + grid.cell_m  # the speck reaches out to the corner
     assert by_blob.bounds[0] > x0 + 5 * grid.cell_m  # removed from the volume (blob of 1 cell)
     assert by_piece.bounds[0] > x0 + 5 * grid.cell_m  # removed from the mesh (a tiny separate piece)
+
+
+def test_download_list_prints_no_size_for_the_timed_result(tmp_path):
+    """result.json holds timings; printing its size would change the page from build to build."""
+    from cistern_archive.report.site import _downloads
+
+    (tmp_path / "result.json").write_text("{}" * 700)
+    (tmp_path / "dimensions.csv").write_text("a,b\n")
+    rows = {d["file"]: d["size"] for d in _downloads({"result": "result.json", "dimensions-csv": "dimensions.csv"},
+                                                     tmp_path)}
+    assert rows == {"result.json": "", "dimensions.csv": "4 B"}

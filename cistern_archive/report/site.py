@@ -375,12 +375,17 @@ DOWNLOADS = (
 )
 
 
+UNSIZED_DOWNLOADS = frozenset({"result"})
+"""Downloads whose size is not printed: ``result.json`` holds the build's timings, so its size changes
+from build to build and would make the page differ while nothing else has."""
+
+
 def _downloads(artifacts: dict[str, str], site_dir: Path) -> list[dict[str, str]]:
     out = []
     for key, title, description in DOWNLOADS:
         if key in artifacts:
-            out.append({"file": artifacts[key], "title": title, "description": description,
-                        "size": human_size((site_dir / artifacts[key]).stat().st_size)})
+            size = "" if key in UNSIZED_DOWNLOADS else human_size((site_dir / artifacts[key]).stat().st_size)
+            out.append({"file": artifacts[key], "title": title, "description": description, "size": size})
     for key in sorted(k for k in artifacts if k.startswith("grid-png-")):
         k = int(key.rsplit("-", 1)[1])
         out.append({"file": artifacts[key], "title": f"Grid image, slice {k + 1}",
