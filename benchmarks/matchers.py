@@ -44,11 +44,10 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-
-from collections.abc import Callable
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 from cistern_archive.pipeline.registry import default_registry

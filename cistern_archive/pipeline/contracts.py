@@ -14,6 +14,7 @@ compass yaw relative to scan i's.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar, Literal, Protocol, runtime_checkable
@@ -158,8 +159,6 @@ class Matcher(Protocol):
 
 def accepts_guess(matcher: object) -> bool:
     """Whether ``matcher.match`` takes the optional ``guess`` keyword (:class:`MatchGuess`)."""
-    import inspect
-
     try:
         parameters = inspect.signature(matcher.match).parameters  # type: ignore[attr-defined]
     except (TypeError, ValueError, AttributeError):

@@ -152,7 +152,8 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> Sit
         with timer.stage("match"):
             def run_pair(i: int, j: int, guess: MatchGuess | None) -> MatchResult:
                 return _run("match", _pair_label(record, i, j),
-                            lambda: _match(build, matcher, record.seed, i, j, guess))
+                            lambda: match_pair(matcher.instance, matcher.params, build.range_scans, record.seed,
+                                               i, j, guess))
 
             def plan(label: str, func: Callable[[], T]) -> T:
                 return _run("match", label, func)
@@ -187,24 +188,21 @@ def _pair_label(record: SiteRecord, i: int, j: int) -> str:
 
 def match_rounds(
     scans: Sequence[RangeScan], localizer: Any, localizer_params: StageParams,
-    match_pair: Callable[[int, int, MatchGuess | None], MatchResult],
+    run_pair: Callable[[int, int, MatchGuess | None], MatchResult],
     *, plan: Callable[[str, Callable[[], Any]], Any] = lambda label, func: func(),
 ) -> list[MatchResult]:
     """Every match a localizer asks for: ``localizer.pairs`` first, then, when the localizer has
     ``guided_pairs``, the second round it works out from the first round's matches (with a
-    :class:`MatchGuess` per pair). ``match_pair(i, j, guess)`` runs one pair; ``plan(label, func)`` runs
-    the localizer's own calls (the runner uses it to label a failure)."""
+    :class:`MatchGuess` per pair). ``run_pair(i, j, guess)`` matches one pair (e.g. with
+    :func:`match_pair`); ``plan(label, func)`` runs the localizer's own calls (the runner uses it to
+    label a failure)."""
     pairs = plan("pair list", lambda: localizer.pairs(len(scans), localizer_params))
-    matches = [match_pair(i, j, None) for i, j in pairs]
+    matches = [run_pair(i, j, None) for i, j in pairs]
     guided = getattr(localizer, "guided_pairs", None)
     if guided is not None:
         second = plan("guided pair list", lambda: guided(scans, list(matches), localizer_params))
-        matches += [match_pair(i, j, guess) for i, j, guess in second]
+        matches += [run_pair(i, j, guess) for i, j, guess in second]
     return matches
-
-
-def _match(build: SiteBuild, matcher: Stage, seed: int, i: int, j: int, guess: MatchGuess | None = None) -> MatchResult:
-    return match_pair(matcher.instance, matcher.params, build.range_scans, seed, i, j, guess)
 
 
 def match_pair(matcher: Any, params: StageParams, scans: Sequence[RangeScan], seed: int, i: int, j: int,

@@ -149,7 +149,6 @@ class PFParams(ConvergenceParams):
     chi_w: float = Field(2.0 / 7.0, gt=0, le=1, description="smoothing of the weight average (eq. 6)")
     chi_sigma: float = Field(2.0 / 5.0, gt=0, le=1, description="smoothing of the std average (eq. 5)")
     tau_pw: float = Field(0.25, ge=-1, le=1, description="weight threshold of eq. 6 (mean per-beam units)")
-
     measurement_model: Literal["raycast", "distance-field"] = "distance-field"
     resample_weighting: Literal["shifted", "exponential"] = "exponential"
     sharpness: float = Field(40.0, gt=0, description="exponent scale of 'exponential' resampling")
@@ -214,6 +213,7 @@ class SearchWindow:
     y_m: float
     half_m: float
     theta_rad: float = 0.0
+    guided: bool = False
 
     @classmethod
     def initial(cls, p: PFParams) -> "SearchWindow":
@@ -222,14 +222,14 @@ class SearchWindow:
 
     @classmethod
     def around(cls, guess: MatchGuess) -> "SearchWindow":
-        return cls(guess.dx_m, guess.dy_m, guess.radius_m, guess.dyaw_rad)
+        return cls(guess.dx_m, guess.dy_m, guess.radius_m, guess.dyaw_rad, guided=True)
 
     def offset(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
         """Chebyshev distance of positions from the centre (the square's 'radius' at them)."""
         return np.maximum(np.abs(np.asarray(x) - self.x_m), np.abs(np.asarray(y) - self.y_m))
 
     def describe(self) -> str:
-        if self.x_m == 0.0 and self.y_m == 0.0:
+        if not self.guided:
             return f"the {2 * self.half_m:g} m search square; the true offset may lie outside it (raise l_init_m)"
         return (f"the ±{self.half_m:g} m search window around the guess ({self.x_m:.2f}, {self.y_m:.2f}); "
                 "the true offset may lie outside it")
@@ -273,7 +273,8 @@ class PFPairwiseMatcher:
 
         Without a ``guess`` the particles start uniform in the ``L_init`` square around the origin;
         with one, in the square ``±guess.radius_m`` around the guessed offset, θ around its heading
-        correction, and verification judges ambiguity within that square (:class:`SearchWindow`).
+        correction (:class:`SearchWindow`); verification still looks for rivals over an ``L_init``
+        square around it (:func:`verify_unique`).
         """
         p = params if isinstance(params, PFParams) else PFParams.model_validate(params.model_dump())
         start = time.perf_counter()
