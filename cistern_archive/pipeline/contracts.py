@@ -17,7 +17,7 @@ from __future__ import annotations
 import inspect
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar, Literal, Protocol, Self, runtime_checkable
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -35,6 +35,11 @@ class StageParams(BaseModel):
     """Base of every plugin's ``Params`` model: unknown keys are refused, values are frozen."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @classmethod
+    def of(cls, params: "StageParams") -> Self:
+        """``params`` as this model: itself when it is one already, else validated from its fields."""
+        return params if isinstance(params, cls) else cls.model_validate(params.model_dump())
 
 
 # --------------------------------------------------------------------------------------- matcher

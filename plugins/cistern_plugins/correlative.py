@@ -185,7 +185,7 @@ class CorrelativeMatcher:
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
               rng: np.random.Generator) -> MatchResult:
         """Locate ``moving`` in ``reference``'s frame; the search is deterministic, ``rng`` is unused."""
-        p = params if isinstance(params, CorrelativeParams) else CorrelativeParams.model_validate(params.model_dump())
+        p = CorrelativeParams.of(params)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:

@@ -48,7 +48,7 @@ class EvidenceGridMapper:
 
     def build(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams) -> MapResult:
         """Fuse every placed scan into the grid of its depth slice."""
-        p = params if isinstance(params, GridParams) else GridParams.model_validate(params.model_dump())
+        p = GridParams.of(params)
         model = SonarModel(
             l_occ=p.l_occ, l_free=p.l_free, clamp_min=p.clamp_min, clamp_max=p.clamp_max,
             free_no_echo=p.free_no_echo,

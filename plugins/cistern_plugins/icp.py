@@ -120,7 +120,7 @@ class ICPMatcher:
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
               rng: np.random.Generator) -> MatchResult:
         """Locate ``moving`` in ``reference``'s frame; ``rng`` is unused (ICP is deterministic)."""
-        p = params if isinstance(params, ICPParams) else ICPParams.model_validate(params.model_dump())
+        p = ICPParams.of(params)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:

@@ -78,7 +78,7 @@ class MosaicComparator:
         params: StageParams,
     ) -> DimensionTable:
         """Measure every reference in the map and summarise (see the module docstring)."""
-        p = params if isinstance(params, MosaicParams) else MosaicParams.model_validate(params.model_dump())
+        p = MosaicParams.of(params)
         rows = tuple(_measure(ref, map_result, poses, station_index, p) for ref in references)
         return DimensionTable(rows=rows, stats=table_stats(rows))
 

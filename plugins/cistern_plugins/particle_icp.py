@@ -106,7 +106,7 @@ class ParticleICPMatcher:
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
               rng: np.random.Generator) -> MatchResult:
         """Locate ``moving`` in ``reference``'s frame; all randomness comes from ``rng``."""
-        p = params if isinstance(params, ParticleICPParams) else ParticleICPParams.model_validate(params.model_dump())
+        p = ParticleICPParams.of(params)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:

@@ -276,7 +276,7 @@ class PFPairwiseMatcher:
         correction (:class:`SearchWindow`); verification still looks for rivals over an ``L_init``
         square around it (:func:`verify_unique`).
         """
-        p = params if isinstance(params, PFParams) else PFParams.model_validate(params.model_dump())
+        p = PFParams.of(params)
         start = time.perf_counter()
         refusal = _refuse(reference, moving, p)
         if refusal:

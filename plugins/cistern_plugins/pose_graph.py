@@ -75,14 +75,14 @@ class PoseGraphLocalizer:
     def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:
         """Every pair within ``window`` scans of each other, nearest first; both directions unless ``one``.
         When ``guided``, only the neighbours (the rest come from :meth:`guided_pairs`)."""
-        p = _params(params)
+        p = PoseGraphParams.of(params)
         return _pairs(n_scans, range(1, (1 if p.guided else p.window) + 1), p)
 
     def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
                      params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
         """The pairs 2 to ``window`` scans apart, each with the guess of the neighbours' solution (none
         when ``guided`` is off, as :meth:`pairs` then asked for them all)."""
-        p = _params(params)
+        p = PoseGraphParams.of(params)
         if not p.guided:
             return []
         n = len(scans)
@@ -103,7 +103,7 @@ class PoseGraphLocalizer:
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
         """Place every scan connected to the reference by converged matches."""
-        p = _params(params)
+        p = PoseGraphParams.of(params)
         n = len(scans)
         good = _usable(matches, n)
         reference = _reference(n, good)
@@ -175,10 +175,6 @@ def _covariance(m: MatchResult, p: PoseGraphParams) -> np.ndarray:
     if m.covariance is not None and np.isfinite(m.covariance).all():
         return 0.5 * (m.covariance + m.covariance.T) + np.diag([p.min_sigma_xy_m**2] * 2 + [math.radians(0.2) ** 2])
     return np.diag([p.sigma_xy_m**2, p.sigma_xy_m**2, math.radians(p.sigma_yaw_deg) ** 2])
-
-
-def _params(params: StageParams) -> PoseGraphParams:
-    return params if isinstance(params, PoseGraphParams) else PoseGraphParams.model_validate(params.model_dump())
 
 
 def _lm(p: PoseGraphParams) -> gtsam.LevenbergMarquardtParams:

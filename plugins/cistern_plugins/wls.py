@@ -81,7 +81,7 @@ class WLSLocalizer:
 
     def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:
         """Directed pairs: neighbours both ways (Table I), then the third-scan pairs up to ``max_gap``."""
-        p = _params(params)
+        p = WLSParams.of(params)
         gaps = range(1, (p.max_gap if p.third_scan else 1) + 1)
         out: list[tuple[int, int]] = []
         for gap in gaps:
@@ -91,7 +91,7 @@ class WLSLocalizer:
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
         """Eq. 10 for every neighbouring pair, then place the scans from the reference (Table III)."""
-        p = _params(params)
+        p = WLSParams.of(params)
         n = len(scans)
         z = converged_measurements(matches, p.min_weight)
         reasons = _pair_reasons(matches)
@@ -117,10 +117,6 @@ class WLSLocalizer:
         yaw = np.array([s.yaw_rad for s in scans]) + np.where(placed, yaw_corr, 0.0)
         why = tuple("" if placed[k] else _unplaced_reason(k, ref, reasons) for k in range(n))
         return Poses(xy_m=xy, yaw_rad=yaw, placed=placed, reasons=why, reference=ref)
-
-
-def _params(params: StageParams) -> WLSParams:
-    return params if isinstance(params, WLSParams) else WLSParams.model_validate(params.model_dump())
 
 
 def vertical_ties(scans: Sequence[RangeScan], below: dict[str, str]) -> list[tuple[int, int]]:

@@ -81,7 +81,7 @@ class GridSearchMatcher:
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
               rng: np.random.Generator) -> MatchResult:
         """Locate ``moving`` in ``reference``'s frame (deterministic: ``rng`` is not needed)."""
-        p = params if isinstance(params, GridSearchParams) else GridSearchParams.model_validate(params.model_dump())
+        p = GridSearchParams.of(params)
         start = time.perf_counter()
         ref, mov = reference.points(), moving.points()
         if len(ref) < 10 or len(mov) < 10:
