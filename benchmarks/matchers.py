@@ -278,15 +278,11 @@ def localizer_params(loc, name: str, overrides: dict | None):
 
 def aligned_errors(poses, true_xy: np.ndarray, only: list[int] | None = None) -> list[float]:
     """Position errors of the placed scans (or of the scans ``only``) after rigid alignment onto the
-    truth (the usual absolute trajectory error, :func:`cistern_archive.evaluation.align_rigid_2d`)."""
-    from cistern_archive.evaluation import align_rigid_2d
+    truth (the usual absolute trajectory error, :func:`cistern_archive.evaluation.aligned_errors`)."""
+    from cistern_archive.evaluation import aligned_errors as errors_after_alignment
 
     placed = np.flatnonzero(poses.placed) if only is None else np.asarray(only, dtype=int)
-    if placed.size < 2:
-        return []
-    est, truth = poses.xy_m[placed], true_xy[placed]
-    rotation, translation = align_rigid_2d(est, truth)
-    return np.linalg.norm(est @ rotation.T + translation - truth, axis=1).tolist()
+    return errors_after_alignment(poses.xy_m[placed], true_xy[placed]).tolist()
 
 
 def synthetic_galleries(n: int, seed: int, matcher_name: str, loc_overrides: dict | None = None) -> dict:

@@ -45,13 +45,25 @@ def scan_position_errors(result: SiteResult) -> dict[int, float]:
     """
     scans = {k: s for k, s in enumerate(result.scans)
              if s.placed and s.truth_x_m is not None and s.x_m is not None}
-    if len(scans) < 2:
-        return {}
-    estimated = np.array([(s.x_m, s.y_m) for s in scans.values()])
-    truth = np.array([(s.truth_x_m, s.truth_y_m) for s in scans.values()])
-    rotation, translation = align_rigid_2d(estimated, truth)
-    errors = np.linalg.norm(estimated @ rotation.T + translation - truth, axis=1)
+    errors = aligned_errors(np.array([(s.x_m, s.y_m) for s in scans.values()]).reshape(-1, 2),
+                            np.array([(s.truth_x_m, s.truth_y_m) for s in scans.values()]).reshape(-1, 2))
     return {k: float(e) for k, e in zip(scans, errors)}
+
+
+def aligned_errors(estimated_xy_m: np.ndarray, true_xy_m: np.ndarray) -> np.ndarray:
+    """Distance (m) of each estimated position from its true one after the rigid alignment of all of
+    them onto the truth (:func:`align_rigid_2d`); empty when there are fewer than two.
+
+    Parameters
+    ----------
+    estimated_xy_m, true_xy_m : ndarray, shape (N, 2)
+    """
+    estimated = np.asarray(estimated_xy_m, dtype=float)
+    truth = np.asarray(true_xy_m, dtype=float)
+    if len(estimated) < 2:
+        return np.zeros(0)
+    rotation, translation = align_rigid_2d(estimated, truth)
+    return np.linalg.norm(estimated @ rotation.T + translation - truth, axis=1)
 
 
 def position_errors(result: SiteResult) -> np.ndarray:
