@@ -102,3 +102,18 @@ def reference_frame_errors(poses: Poses, true_xy_m: np.ndarray, compass_error_ra
         expected = in_compass_frame(true_xy_m[k] - true_xy_m[ref], compass_error_rad[ref])
         errors.append(float(np.hypot(*(poses.xy_m[k] - expected))))
     return errors
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95 % (by default) Wilson score interval of a rate ``successes / n``; ``(nan, nan)`` when ``n == 0``.
+
+    Unlike the normal approximation it stays inside [0, 1] and is informative at rates of 0 or 1
+    (Wilson 1927; Brown, Cai and DasGupta 2001 recommend it for small ``n``).
+    """
+    if n <= 0:
+        return (float("nan"), float("nan"))
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cistern_archive.catalog.models import DEFAULT_PLUGINS
 from cistern_archive.catalog.validate import validate_catalog, validate_record
 from cistern_archive.evaluation import align_rigid_2d, position_errors
 from cistern_archive.pipeline.runner import build_site, write_site_result
@@ -49,9 +50,9 @@ def test_pool_result_has_the_documented_fields(pool_build, tmp_path):
     assert {"i", "j", "dx_m", "dy_m", "weight", "converged", "iterations"} <= set(data["pairs"][0])
     assert {"name", "map_m", "reference_m", "reference_kind", "diff_m"} <= set(data["dimensions"][0])
     plugins = {p["stage"]: p for p in data["provenance"]["plugins"]}
-    assert plugins["matcher"]["plugin"] == "pf-pairwise"
+    assert plugins["matcher"]["plugin"] == DEFAULT_PLUGINS["matcher"]
     assert plugins["matcher"]["distribution"] == "cistern-archive"
-    assert "n_particles" in plugins["matcher"]["params"]
+    assert plugins["matcher"]["params"]  # every parameter, defaults included
     assert data["provenance"]["seeds"]["site"] == pool_build.record.seed
     assert set(data["timings_s"]) >= {"load", "segment", "match", "localize", "map", "compare", "total"}
     assert (tmp_path / "record.json").is_file()
@@ -97,21 +98,23 @@ def test_validate_finds_the_bundled_catalog_clean(bundled_catalog):
 
 
 def test_guided_round_passes_guesses_to_matchers_that_take_them(bundled_catalog, tmp_path):
-    """``match_rounds``: the localizer's pairs, then its guided pairs; the guess reaches a matcher whose
-    ``match`` takes it and is recorded on the result; a matcher without it is matched globally."""
+    """``match_rounds``: the localizer's pairs, then its guided pairs, round after round until it asks for
+    no new pair (a pair asked for again is not matched twice); the guess reaches a matcher whose ``match``
+    takes it and is recorded on the result; a matcher without it is matched globally."""
     from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, accepts_guess
     from cistern_archive.pipeline.runner import match_pair, match_rounds
     from cistern_plugins.pf_pairwise import PFPairwiseMatcher
     from tests.stage_plugins import CompassOnlyMatcher
 
     seen = []
+    rounds = []
 
     class Localizer:
         def pairs(self, n, params):
             return [(0, 1)]
 
         def guided_pairs(self, scans, matches, params):
-            assert [(m.i, m.j) for m in matches] == [(0, 1)]
+            rounds.append([(m.i, m.j) for m in matches])
             return [(0, 2, MatchGuess(1.0, 2.0, 0.1, 0.5)), (1, 2, None)]
 
     class GuessingMatcher(CompassOnlyMatcher):
@@ -124,9 +127,11 @@ def test_guided_round_passes_guesses_to_matchers_that_take_them(bundled_catalog,
     scans = pool_scans(bundled_catalog)
     for matcher, expect in ((GuessingMatcher(), MatchGuess(1.0, 2.0, 0.1, 0.5)), (CompassOnlyMatcher(), None)):
         seen.clear()
+        rounds.clear()
         matches = match_rounds(scans, Localizer(), None, lambda i, j, g: match_pair(
             matcher, matcher.Params(), scans, 1, i, j, g))
         assert [(m.i, m.j) for m in matches] == [(0, 1), (0, 2), (1, 2)]
+        assert rounds == [[(0, 1)], [(0, 1), (0, 2), (1, 2)]]  # the third round asked for nothing new
         assert all(isinstance(m, MatchResult) for m in matches)
         assert matches[1].guess == expect and matches[2].guess is None
         assert seen == ([None, expect, None] if expect else [])

@@ -16,8 +16,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*$")
 
 DEFAULT_PLUGINS = {
-    "matcher": "pf-pairwise",
-    "localizer": "wls",
+    "matcher": "correlative",
+    "localizer": "site-graph",
     "mapper": "evidence-grid",
     "comparator": "mosaic",
 }

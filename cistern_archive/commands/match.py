@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 import typer
 
+from cistern_archive.catalog.models import DEFAULT_PLUGINS
 from cistern_archive.commands import EXIT_OK
 
 
@@ -17,7 +17,7 @@ def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, se
     """Read two scan files, segment them, match ``moving`` against ``reference``; a JSON-able dict."""
     from cistern_archive.catalog.models import Segmentation
     from cistern_archive.pipeline.registry import default_registry
-    from cistern_archive.pipeline.runner import pair_rng
+    from cistern_archive.pipeline.runner import match_pair
     from cistern_archive.sonar.readers import read_scans
     from cistern_archive.sonar.segmentation import segment
 
@@ -26,22 +26,36 @@ def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, se
     checked = registry.check_params("matcher", matcher, params)
     settings = Segmentation(method=segmentation, min_range_m=min_range_m)
     scan_a, scan_b = (segment(read_scans(path)[0], settings) for path in (reference, moving))
-    start = time.perf_counter()
-    result = plugin.instance.match(scan_a, scan_b, checked, rng=pair_rng(seed, 0, 1))
-    seconds = time.perf_counter() - start
+    result = match_pair(plugin.instance, checked, [scan_a, scan_b], seed, 0, 1)
     return {
         "matcher": matcher,
         "reference": str(reference),
         "moving": str(moving),
-        "dx_m": float(result.dx_m),
-        "dy_m": float(result.dy_m),
-        "dyaw_rad": float(result.dyaw_rad),
-        "weight": float(result.weight) if np.isfinite(result.weight) else None,
+        "dx_m": _finite(result.dx_m),
+        "dy_m": _finite(result.dy_m),
+        "dyaw_rad": _finite(result.dyaw_rad),
+        "weight": _finite(result.weight),
+        "confidence": _finite(result.confidence),
         "converged": bool(result.converged),
         "iterations": int(result.iterations),
-        "seconds": round(seconds, 6),
+        "seconds": round(result.seconds, 6),
         "reason": result.reason,
     }
+
+
+def _finite(value: float | None) -> float | None:
+    return float(value) if value is not None and np.isfinite(value) else None
+
+
+def _describe(out: dict) -> str:
+    """One line for a terminal: the estimate (or that there is none), the verdict and the effort."""
+    state = "converged" if out["converged"] else f"not converged ({out['reason']})"
+    if out["dx_m"] is None:
+        where = "no estimate"
+    else:
+        where = (f"dx={out['dx_m']:+.3f} m dy={out['dy_m']:+.3f} m "
+                 f"dyaw={np.degrees(out['dyaw_rad'] or 0.0):+.2f} deg weight={out['weight']}")
+    return f"{where} {state} after {out['iterations']} iterations, {out['seconds']:.3f} s"
 
 
 def register(app: typer.Typer) -> None:
@@ -49,7 +63,8 @@ def register(app: typer.Typer) -> None:
     def match(
         reference: Path = typer.Argument(..., exists=True, dir_okay=False, help="Reference scan file (i)."),
         moving: Path = typer.Argument(..., exists=True, dir_okay=False, help="Scan to locate (j)."),
-        matcher: str = typer.Option("pf-pairwise", "--matcher", help="Matcher plugin name."),
+        matcher: str = typer.Option(DEFAULT_PLUGINS["matcher"], "--matcher",
+                                    help="Matcher plugin name (default: the catalog's default matcher)."),
         params: str = typer.Option("{}", "--params", help="Matcher parameters as a JSON object."),
         seed: int = typer.Option(0, "--seed", help="Random seed."),
         segmentation: str = typer.Option("paper", "--segmentation", help="Beam segmentation: paper or cfar."),
@@ -67,9 +82,7 @@ def register(app: typer.Typer) -> None:
         out = match_files(reference, moving, matcher=matcher, params=parsed, seed=seed, segmentation=segmentation,
                           min_range_m=min_range)
         if as_json:
-            typer.echo(json.dumps(out))
+            typer.echo(json.dumps(out, allow_nan=False))
         else:
-            state = "converged" if out["converged"] else f"not converged ({out['reason']})"
-            typer.echo(f"dx={out['dx_m']:+.3f} m dy={out['dy_m']:+.3f} m dyaw={np.degrees(out['dyaw_rad']):+.2f} deg "
-                       f"weight={out['weight']} {state} after {out['iterations']} iterations, {out['seconds']:.3f} s")
+            typer.echo(_describe(out))
         raise typer.Exit(EXIT_OK)

@@ -116,6 +116,15 @@ class MatchResult:
         Diagnostics for the report.
     guess : MatchGuess or None
         The window the matcher was asked to search (set by the runner; ``None`` for a global search).
+    tentative : bool
+        For a pair that did not converge: the estimate is still the matcher's best, refused only because
+        it is not unique or not constrained enough on its own (a rival peak nearly as good, a corridor
+        that leaves one direction weak). A localizer may use it where converged matches corroborate it
+        (closing a consistent cycle with them), never alone.
+    confidence : float or None
+        The matcher's calibrated probability that a converged estimate is right (within the accuracy
+        its verification is calibrated for), when it estimates one; localizers order and weigh
+        matches by it.
     """
 
     i: int
@@ -131,6 +140,8 @@ class MatchResult:
     covariance: np.ndarray | None = None
     history: MatchHistory | None = None
     guess: MatchGuess | None = None
+    confidence: float | None = None
+    tentative: bool = False
 
     @property
     def translation(self) -> np.ndarray:

@@ -40,14 +40,19 @@ class ScanPose(Model):
 class PairResult(Model):
     i: int
     j: int
-    dx_m: float
-    dy_m: float
-    dyaw_rad: float
+    dx_m: float | None
+    """``None`` when the matcher reached no estimate (likewise ``dy_m``, ``dyaw_rad``)."""
+    dy_m: float | None
+    dyaw_rad: float | None
     weight: float
     converged: bool
     iterations: int
     seconds: float
     reason: str = ""
+    confidence: float | None = None
+    """The matcher's probability that the estimate is right (0..1), when it calibrates one."""
+    tentative: bool = False
+    """A non-converged best estimate a localizer may use where converged matches corroborate it."""
     guess: list[float] | None = None
     """``[dx_m, dy_m, dyaw_rad, radius_m]`` of the window the matcher searched (guided pairs only)."""
 

@@ -16,7 +16,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -42,6 +42,9 @@ from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.scan import RangeScan, Scan
 
 T = TypeVar("T")
+
+MAX_MATCH_ROUNDS = 6
+"""Rounds of pair matching a localizer may ask for (:func:`match_rounds`)."""
 
 
 @dataclass(frozen=True)
@@ -192,16 +195,23 @@ def match_rounds(
     *, plan: Callable[[str, Callable[[], Any]], Any] = lambda label, func: func(),
 ) -> list[MatchResult]:
     """Every match a localizer asks for: ``localizer.pairs`` first, then, when the localizer has
-    ``guided_pairs``, the second round it works out from the first round's matches (with a
-    :class:`MatchGuess` per pair). ``run_pair(i, j, guess)`` matches one pair (e.g. with
-    :func:`match_pair`); ``plan(label, func)`` runs the localizer's own calls (the runner uses it to
-    label a failure)."""
+    ``guided_pairs``, the further rounds it works out from the matches so far (each pair with a
+    :class:`MatchGuess` or ``None``), until it asks for no new pair or ``MAX_MATCH_ROUNDS`` rounds have
+    run. ``run_pair(i, j, guess)`` matches one pair (e.g. with :func:`match_pair`); ``plan(label, func)``
+    runs the localizer's own calls (the runner uses it to label a failure). A pair already matched is not
+    matched again."""
     pairs = plan("pair list", lambda: localizer.pairs(len(scans), localizer_params))
     matches = [run_pair(i, j, None) for i, j in pairs]
     guided = getattr(localizer, "guided_pairs", None)
-    if guided is not None:
-        second = plan("guided pair list", lambda: guided(scans, list(matches), localizer_params))
-        matches += [run_pair(i, j, guess) for i, j, guess in second]
+    if guided is None:
+        return matches
+    for round_no in range(2, MAX_MATCH_ROUNDS + 1):
+        done = {(m.i, m.j) for m in matches}
+        asked = plan(f"pair list of round {round_no}", lambda: guided(scans, list(matches), localizer_params))
+        fresh = [(i, j, guess) for i, j, guess in asked if (i, j) not in done]
+        if not fresh:
+            break
+        matches += [run_pair(i, j, guess) for i, j, guess in fresh]
     return matches
 
 
@@ -216,8 +226,50 @@ def match_pair(matcher: Any, params: StageParams, scans: Sequence[RangeScan], se
     result = matcher.match(scans[i], scans[j], params, rng=pair_rng(seed, i, j), **extra)
     if not isinstance(result, MatchResult):
         raise TypeError(f"matcher returned {type(result).__name__}, expected MatchResult")
-    seconds = result.seconds if result.seconds > 0 else time.perf_counter() - start
-    return MatchResult(**{**result.__dict__, "i": i, "j": j, "seconds": seconds, "guess": extra.get("guess")})
+    seconds = result.seconds if math.isfinite(result.seconds) and result.seconds > 0 else time.perf_counter() - start
+    checked = checked_match(result)
+    return MatchResult(**{**checked.__dict__, "i": i, "j": j, "seconds": seconds, "guess": extra.get("guess")})
+
+
+def checked_match(result: MatchResult) -> MatchResult:
+    """``result`` when every number in it is usable, else the same pair turned into a failure.
+
+    A converged estimate must have a finite displacement, heading correction and weight, and its
+    covariance (when given) must be a finite, symmetric, positive-definite 3 × 3 matrix; a confidence
+    must lie in [0, 1]. A matcher that breaks this fails only its pair, with a reason naming what was
+    wrong; a non-converged pair keeps its reason, and non-finite numbers never reach ``result.json``
+    (:func:`assemble_result` writes them as ``null``).
+    """
+    problem = _match_problem(result)
+    weight = float(result.weight) if math.isfinite(result.weight) else 0.0
+    if not problem:
+        tentative = result.tentative and not result.converged
+        return result if (weight, tentative) == (result.weight, result.tentative) else \
+            replace(result, weight=weight, tentative=tentative)
+    reason = result.reason if not result.converged and result.reason else f"unusable matcher output: {problem}"
+    return replace(result, converged=False, reason=reason, weight=weight, covariance=None, confidence=None,
+                   tentative=False)
+
+
+def _match_problem(result: MatchResult) -> str:
+    values = {"dx_m": result.dx_m, "dy_m": result.dy_m, "dyaw_rad": result.dyaw_rad, "weight": result.weight}
+    bad = [name for name, value in values.items() if not (isinstance(value, (int, float)) and math.isfinite(value))]
+    if bad:
+        return "non-finite " + ", ".join(bad)
+    if result.confidence is not None and not 0.0 <= result.confidence <= 1.0:
+        return f"confidence {result.confidence!r} outside [0, 1]"
+    cov = result.covariance
+    if cov is None:
+        return ""
+    cov = np.asarray(cov, dtype=np.float64)
+    if cov.shape != (3, 3) or not np.isfinite(cov).all():
+        return f"covariance of shape {cov.shape} with non-finite entries" if cov.shape == (3, 3) else \
+            f"covariance of shape {cov.shape}, expected (3, 3)"
+    if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12):
+        return "covariance not symmetric"
+    if np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
+        return "covariance not positive definite"
+    return ""
 
 
 def _finite(value: float) -> float | None:
@@ -253,7 +305,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
     result.scans = scans
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
     result.pairs = [
-        PairResult(i=m.i, j=m.j, dx_m=m.dx_m, dy_m=m.dy_m, dyaw_rad=m.dyaw_rad, weight=_finite(m.weight) or 0.0,
+        PairResult(i=m.i, j=m.j, dx_m=_finite(m.dx_m), dy_m=_finite(m.dy_m), dyaw_rad=_finite(m.dyaw_rad),
+                   weight=_finite(m.weight) or 0.0, confidence=_finite(m.confidence), tentative=m.tentative,
                    converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason,
                    guess=None if m.guess is None else [m.guess.dx_m, m.guess.dy_m, m.guess.dyaw_rad, m.guess.radius_m])
         for m in build.matches

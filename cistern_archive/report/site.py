@@ -307,7 +307,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     figure_anchor = {f.key: views[id(f)]["anchor"] for f in drawn["pairs"]}
     pair_anchor = {pair: figure_anchor[keys[-1]] for pair, keys in drawn["pair_keys"].items() if keys}
     pairs = [{"label": f"{_label(labels, p.i)} → {_label(labels, p.j)}", "dx": signed(p.dx_m), "dy": signed(p.dy_m),
-              "dyaw": signed(math.degrees(p.dyaw_rad), 2), "weight": number(p.weight, 3),
+              "dyaw": signed(None if p.dyaw_rad is None else math.degrees(p.dyaw_rad), 2), "weight": number(p.weight, 3),
               "converged": "yes" if p.converged else "no", "iterations": str(p.iterations),
               "reason": p.reason or "—",
               "figure": (p.i, p.j) in pair_anchor, "anchor": pair_anchor.get((p.i, p.j), "")}

@@ -9,7 +9,7 @@ Two sonar models (``PairSpec.sonar``):
 * ``"simulator"``: the project's physical sonar simulator
   (:func:`cistern_archive.sonar.simulator.simulate_scan`: beam patterns, speckle, multipath ghosts,
   reverberation, 8-bit AD conversion) followed by the pipeline's beam segmentation
-  (:func:`cistern_archive.sonar.segmentation.segment`, the paper's method), so matchers see the
+  (:func:`cistern_archive.sonar.segmentation.segment`, ``PairSpec.segmentation``), so matchers see the
   ranges they will see in a site build. ``noise_m`` then only labels the pair; the noise is the
   simulator's.
 * ``"rays"`` (default): ideal rays with Gaussian range noise (``noise_m``), a fraction of multipath outliers (a
@@ -80,8 +80,10 @@ def simulate_range_scan(env: Environment, position: np.ndarray, yaw_rad: float, 
 
 
 def simulate_sonar_scan(env: Environment, position: np.ndarray, yaw_rad: float, *, compass_yaw_rad: float,
-                        max_range_m: float, step_deg: float, rng: np.random.Generator, station: str = "") -> RangeScan:
-    """One sweep through the physical simulator and the paper's segmentation (see module docstring)."""
+                        max_range_m: float, step_deg: float, rng: np.random.Generator, station: str = "",
+                        segmentation: str | None = None) -> RangeScan:
+    """One sweep through the physical simulator and the pipeline's beam segmentation (``segmentation``:
+    a :class:`~cistern_archive.catalog.models.Segmentation` method; default, the records' default)."""
     from cistern_archive.catalog.models import Segmentation
     from cistern_archive.sonar.segmentation import segment
     from cistern_archive.sonar.simulator import TruePose, simulate_scan
@@ -92,7 +94,9 @@ def simulate_sonar_scan(env: Environment, position: np.ndarray, yaw_rad: float, 
     effects = EffectsSpec(compass_sigma_deg=0.0, compass_bias_deg=0.0, depth_sigma_m=0.0)
     pose = TruePose(station, float(position[0]), float(position[1]), float(yaw_rad), 1.0)
     sim = simulate_scan(list(env.rings), pose, sonar, effects, rng, water_depth_m=3.0)
-    rs = segment(sim.scan.replace(yaw_rad=float(compass_yaw_rad)), Segmentation(method="paper", min_range_m=0.4))
+    settings = Segmentation(min_range_m=0.4) if segmentation is None else \
+        Segmentation(method=segmentation, min_range_m=0.4)
+    rs = segment(sim.scan.replace(yaw_rad=float(compass_yaw_rad)), settings)
     return rs
 
 
@@ -123,6 +127,8 @@ class PairSpec:
     max_offset_m: float = 2.0
     max_yaw_error_deg: float = 20.0
     sonar: str = "rays"
+    segmentation: str | None = None
+    """Segmentation method of the ``simulator`` sonar (``None``: the records' default)."""
 
 
 def simulated_pair(rng: np.random.Generator, *, spec: PairSpec = PairSpec(), overlapping: bool = True,
@@ -173,7 +179,8 @@ def simulated_pair(rng: np.random.Generator, *, spec: PairSpec = PairSpec(), ove
         yaw_ref = float(rng.uniform(-np.pi, np.pi))
         yaw_mov = float(rng.uniform(-np.pi, np.pi))
         if spec.sonar == "simulator":
-            common = dict(max_range_m=max_range, step_deg=360.0 / spec.n_beams, rng=rng)
+            common = dict(max_range_m=max_range, step_deg=360.0 / spec.n_beams, rng=rng,
+                          segmentation=spec.segmentation)
             ref = simulate_sonar_scan(env, p_ref, yaw_ref, compass_yaw_rad=yaw_ref, station="ref", **common)
             mov = simulate_sonar_scan(env_mov, p_mov, yaw_mov, compass_yaw_rad=yaw_mov + yaw_error, station="mov",
                                       **common)

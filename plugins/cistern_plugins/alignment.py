@@ -86,7 +86,7 @@ def point_to_line_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray,
     return -np.linalg.solve(h, jac.T @ (w * res))
 
 
-def estimate_normals(points: np.ndarray, tree: cKDTree, k: int = 6) -> np.ndarray:
+def estimate_normals(points: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
     """Unit wall normals of points from the principal axis of their ``k`` nearest neighbours."""
     k = min(k, len(points))
     _, idx = tree.query(points, k=k)
@@ -140,6 +140,7 @@ class ConvergenceThresholds:
     max_violation_ratio: float = 0.09
     free_space_margin_m: float = 0.3
     max_weak_std_m: float = 0.03
+    calibrated: bool = False
 
 
 class ConvergenceParams(StageParams):
@@ -148,16 +149,19 @@ class ConvergenceParams(StageParams):
     inlier_distance_m: float = Field(0.15, gt=0)
     min_inliers: int = Field(25, ge=3)
     min_inlier_ratio: float = Field(0.5, ge=0, le=1)
-    min_constraint: float = Field(0.1, ge=0)
-    max_weak_std_m: float = Field(0.03, gt=0)
+    min_constraint: float = Field(0.03, ge=0)
+    max_weak_std_m: float = Field(0.025, gt=0)
     max_violation_ratio: float = Field(0.09, ge=0, le=1)
     free_space_margin_m: float = Field(0.3, ge=0)
     min_points: int = Field(20, ge=3)
+    calibrated: bool = Field(True, description="judge a fit by the calibrated verification model "
+                             "(cistern_plugins.verification) instead of the fixed ratio, constraint and "
+                             "free-space limits; min_inliers still applies")
 
     def limits(self) -> ConvergenceThresholds:
         return ConvergenceThresholds(self.inlier_distance_m, self.min_inliers, self.min_inlier_ratio,
                                      self.min_constraint, self.max_violation_ratio, self.free_space_margin_m,
-                                     self.max_weak_std_m)
+                                     self.max_weak_std_m, self.calibrated)
 
 
 def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
@@ -193,15 +197,29 @@ def verdict(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
     return ""
 
 
-class FreeSpace:
-    """The free space one scan observed: on each map-frame bearing, nothing closer than its echo."""
+CONE_DEFAULT = True
 
-    def __init__(self, scan: RangeScan):
+
+class FreeSpace:
+    """The free space one scan observed: on each map-frame bearing, nothing closer than its echo.
+
+    A beam is a cone ``beam_width_rad`` wide, not a ray, and segmentation keeps one echo per beam: a
+    wall that clips the edge of the cone (the jamb of an opening the beam looks through, a wall met at
+    grazing incidence) may sit closer than the echo the beam reports. So the free range on a bearing is
+    the *nearest* echo of every beam whose cone covers that bearing: free space eroded by the beam
+    cone. Without this, correct matches of scans that look through an opening into the next chamber
+    put 10–40 % of their wall points in each other's "free" space.
+    """
+
+    def __init__(self, scan: RangeScan, *, cone: bool = CONE_DEFAULT):
         angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
         order = np.argsort(angles, kind="stable")
         self.angles = angles[order]
-        self.ranges = scan.ranges_m[order]
-        self.tolerance_rad = 1.5 * (2 * np.pi / max(len(angles), 1))
+        ranges = scan.ranges_m[order]
+        step = 2 * np.pi / max(len(angles), 1)
+        self.tolerance_rad = 1.5 * step
+        half_cone = 0.5 * float(scan.beam_width_rad) if cone else 0.0
+        self.ranges = _cone_minimum(self.angles, ranges, half_cone) if half_cone > 0 else ranges
 
     def violations(self, points: np.ndarray, margin_m: float) -> tuple[int, int]:
         """(points in observed free space, points on bearings with an echo); ``points`` relative to the station."""
@@ -228,6 +246,24 @@ class FreeSpace:
         r = np.hypot(points[:, 0], points[:, 1])
         bad = checked & (r < r_echo - margin_m)
         return bad, checked
+
+
+def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:
+    """For every beam (``angles`` sorted in [0, 2π)), the nearest finite echo among the beams within
+    ``half_cone_rad`` of it (cyclically); ``nan`` where none of them has an echo."""
+    n = len(angles)
+    if n == 0:
+        return ranges
+    finite = np.where(np.isfinite(ranges), ranges, np.inf)
+    wrapped = np.concatenate([angles - 2 * np.pi, angles, angles + 2 * np.pi])
+    values = np.concatenate([finite, finite, finite])
+    lo = np.searchsorted(wrapped, angles - half_cone_rad - 1e-12, side="left")
+    hi = np.searchsorted(wrapped, angles + half_cone_rad + 1e-12, side="right")
+    width = int((hi - lo).max())
+    idx = np.clip(lo[:, None] + np.arange(width)[None, :], 0, len(values) - 1)
+    window = np.where(idx < hi[:, None], values[idx], np.inf)
+    out = window.min(axis=1)
+    return np.where(np.isfinite(out), out, np.nan)
 
 
 def wrap_array(angle: np.ndarray) -> np.ndarray:

@@ -30,22 +30,25 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import ClassVar
 
 import numpy as np
 from pydantic import Field
 from scipy import ndimage
 
-from cistern_archive.pipeline.contracts import MatchResult, StageParams
+from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
 from cistern_plugins.alignment import (
     ConvergenceParams,
     FreeSpace,
     ReferenceModel,
+    compose,
     scan_points,
     too_few_points,
-    verdict,
+    transform,
 )
+from cistern_plugins.verification import judge, match_confidence, weakly_constrained
 from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
 
@@ -54,8 +57,12 @@ class CorrelativeParams(ConvergenceParams):
 
     resolution_m: float = Field(0.05, gt=0)
     sigma_m: float = Field(0.08, gt=0)
-    search_m: float = Field(2.5, gt=0)
-    search_deg: float = Field(25.0, ge=0, le=180)
+    search_m: float | None = Field(None, gt=0, description="half-width of the global search square; default: "
+                                   "the smaller sonar range of the pair, at most max_search_m")
+    max_search_m: float = Field(6.0, gt=0, description="cap of the default global search square")
+    search_deg: float = Field(12.0, ge=0, le=180, description="yaw window of a global search: six times a "
+                              "Micron-class compass's 2° noise")
+    guess_search_deg: float = Field(6.0, ge=0, le=180, description="yaw window around a guess's heading")
     levels: int = Field(5, ge=1, le=8)
     min_score: float = Field(0.15, ge=0, le=1)
     ambiguity_ratio: float = Field(0.9, gt=0, le=1)
@@ -101,6 +108,10 @@ class LikelihoodPyramid:
         """Integer (col, row) of points, shape (..., 2)."""
         return np.floor((points - self.origin) / self.resolution).astype(np.int64)
 
+    def padded(self, window_cells: int) -> "PaddedPyramid":
+        """The levels with a zero border wide enough for every lookup of a ``±window_cells`` search."""
+        return PaddedPyramid(self, window_cells)
+
     def score(self, level: int, point_cells: np.ndarray, offsets: np.ndarray, angle_idx: np.ndarray) -> np.ndarray:
         """Mean grid value of level ``level`` under rotated points shifted by cell offsets.
 
@@ -115,13 +126,43 @@ class LikelihoodPyramid:
         return vals.mean(axis=1)
 
 
-def _angles(points: np.ndarray, p: CorrelativeParams) -> np.ndarray:
-    """Yaw candidates: the step moves the farthest point by at most one cell (Hess et al. eq. 7)."""
-    if p.search_deg == 0:
+class PaddedPyramid:
+    """A :class:`LikelihoodPyramid` with every level framed by zeros, flattened, so that a search of
+    ``±window_cells`` scores points by one gather of flat indices (no bounds tests): a point's cell is
+    clamped to just beyond the reach of any offset, where the frame is zero, which keeps every score
+    exact (out-of-grid points count 0)."""
+
+    def __init__(self, pyramid: LikelihoodPyramid, window_cells: int):
+        self.base = pyramid
+        self.pad = 2 * window_cells + 2
+        h, w = pyramid.levels[0].shape
+        self.shape = (h + 2 * self.pad, w + 2 * self.pad)
+        self.flat = [np.pad(level, self.pad).ravel() for level in pyramid.levels]
+        self.window = window_cells
+
+    def point_index(self, point_cells: np.ndarray) -> np.ndarray:
+        """Flat indices (R, N) of rotated points' cells, clamped into the zero frame."""
+        h, w = self.base.levels[0].shape
+        reach = self.window + 1
+        col = np.clip(point_cells[..., 0], -reach, w - 1 + reach) + self.pad
+        row = np.clip(point_cells[..., 1], -reach, h - 1 + reach) + self.pad
+        return (row * self.shape[1] + col).astype(np.int64)
+
+    def score(self, level: int, point_index: np.ndarray, offsets: np.ndarray, angle_idx: np.ndarray) -> np.ndarray:
+        """As :meth:`LikelihoodPyramid.score`, on flat indices from :meth:`point_index`."""
+        shift = offsets[:, 1] * self.shape[1] + offsets[:, 0]
+        vals = self.flat[level][point_index[angle_idx] + shift[:, None]]
+        return vals.sum(axis=1, dtype=np.float64) / point_index.shape[1]
+
+
+def _angles(points: np.ndarray, search_deg: float, resolution_m: float) -> np.ndarray:
+    """Yaw candidates within ``±search_deg``: the step moves the farthest point by at most one cell
+    (Hess et al. eq. 7)."""
+    if search_deg == 0:
         return np.zeros(1)
-    d_max = max(float(np.percentile(np.hypot(points[:, 0], points[:, 1]), 95)), p.resolution_m)
-    step = math.acos(max(-1.0, 1 - p.resolution_m**2 / (2 * d_max**2)))
-    n = int(math.ceil(math.radians(p.search_deg) / step))
+    d_max = max(float(np.percentile(np.hypot(points[:, 0], points[:, 1]), 95)), resolution_m)
+    step = math.acos(max(-1.0, 1 - resolution_m**2 / (2 * d_max**2)))
+    n = int(math.ceil(math.radians(search_deg) / step))
     return np.arange(-n, n + 1) * step
 
 
@@ -132,13 +173,14 @@ def branch_and_bound(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndar
     top = len(pyr.levels) - 1
     c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
     rotated = np.stack([c * points[:, 0] - s * points[:, 1], s * points[:, 0] + c * points[:, 1]], axis=-1)
-    point_cells = pyr.cells(rotated)
+    fast = pyr.padded(window_cells)
+    point_cells = fast.point_index(pyr.cells(rotated))
     step = 2**top
     span = np.arange(-window_cells, window_cells + 1, step)
     gx, gy, ga = np.meshgrid(span, span, np.arange(len(angles)), indexing="ij")
     nodes = np.column_stack([gx.ravel(), gy.ravel(), ga.ravel()])
-    bounds = pyr.score(top, point_cells, nodes[:, :2], nodes[:, 2])
-    best = _greedy_descent(pyr, point_cells, nodes[np.argmax(bounds)], top, window_cells)
+    bounds = fast.score(top, point_cells, nodes[:, :2], nodes[:, 2])
+    best = _greedy_descent(fast, point_cells, nodes[np.argmax(bounds)], top, window_cells)
     for level in range(top, 0, -1):
         keep = bounds >= max(_threshold(best, ambiguity_ratio), floor)
         nodes = nodes[keep]
@@ -148,9 +190,9 @@ def branch_and_bound(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndar
         kids = np.concatenate([nodes + [dx, dy, 0] for dx in (0, half) for dy in (0, half)])
         kids = kids[(np.abs(kids[:, 0]) <= window_cells) & (np.abs(kids[:, 1]) <= window_cells)]
         nodes = kids
-        bounds = pyr.score(level - 1, point_cells, nodes[:, :2], nodes[:, 2])
+        bounds = fast.score(level - 1, point_cells, nodes[:, :2], nodes[:, 2])
         if level - 1 > 0:
-            best = max(best, _greedy_descent(pyr, point_cells, nodes[np.argmax(bounds)], level - 1, window_cells))
+            best = max(best, _greedy_descent(fast, point_cells, nodes[np.argmax(bounds)], level - 1, window_cells))
         else:
             best = max(best, float(bounds.max()))
     keep = bounds >= max(_threshold(best, ambiguity_ratio), floor)
@@ -163,7 +205,7 @@ def _threshold(best: float, ratio: float) -> float:
     return best - (1.0 - ratio) * abs(best)
 
 
-def _greedy_descent(pyr: LikelihoodPyramid, point_cells: np.ndarray, node: np.ndarray, level: int,
+def _greedy_descent(pyr: "PaddedPyramid", point_cells: np.ndarray, node: np.ndarray, level: int,
                     window_cells: int) -> float:
     """Exact score of the leaf reached by always taking the best child: a lower bound of the optimum."""
     node = node.copy()
@@ -183,44 +225,76 @@ class CorrelativeMatcher:
     Params: ClassVar[type[StageParams]] = CorrelativeParams
 
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
-              rng: np.random.Generator) -> MatchResult:
-        """Locate ``moving`` in ``reference``'s frame; the search is deterministic, ``rng`` is unused."""
+              rng: np.random.Generator, guess: MatchGuess | None = None) -> MatchResult:
+        """Locate ``moving`` in ``reference``'s frame; the search is deterministic, ``rng`` is unused.
+
+        Without a ``guess`` the search covers ``±search_m`` around the origin and ``±search_deg`` of yaw;
+        with one, ``±guess.radius_m`` around the guessed offset and ``±guess_search_deg`` around its
+        heading (the ambiguity test then only sees rivals inside that window).
+        """
         p = CorrelativeParams.of(params)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:
             return MatchResult.no_estimate(why, seconds=time.perf_counter() - start)
         model = ReferenceModel(reference)
-        src = scan_points(moving)
-        pyr = LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, p.search_m + 4 * p.sigma_m, p.levels,
+        centre = np.zeros(3) if guess is None else np.array([guess.dx_m, guess.dy_m, guess.dyaw_rad])
+        half_m = search_half_width(reference, moving, p) if guess is None else guess.radius_m
+        src = transform(thinned(scan_points(moving), 2 * p.resolution_m), centre)
+        pyr = LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, half_m + 4 * p.sigma_m, p.levels,
                                 model.free, p.free_space_margin_m, p.free_space_penalty)
-        angles = _angles(src, p)
-        window = int(math.ceil(p.search_m / p.resolution_m))
+        angles = _angles(src, p.search_deg if guess is None else p.guess_search_deg, p.resolution_m)
+        window = int(math.ceil(half_m / p.resolution_m))
         nodes, scores = branch_and_bound(pyr, src, angles, window, p.ambiguity_ratio,
                                          floor=p.ambiguity_ratio * p.min_score)
         if len(nodes) == 0:
             reason = f"no pose in the window scores {p.ambiguity_ratio * p.min_score:.2f} or more"
             return MatchResult.no_estimate(reason, seconds=time.perf_counter() - start)
-        best = np.array([nodes[0, 0] * p.resolution_m, nodes[0, 1] * p.resolution_m, angles[nodes[0, 2]]])
+        delta = np.array([nodes[0, 0] * p.resolution_m, nodes[0, 1] * p.resolution_m, angles[nodes[0, 2]]])
+        best = compose(delta, centre)
         reason = ""
         if scores[0] < p.min_score:
             reason = f"best correlation score {scores[0]:.2f} < {p.min_score:.2f}"
         rival = _rival(nodes, scores, angles, p, pyr, src)
-        if not reason and rival is not None:
+        ambiguous = not reason and rival is not None
+        if ambiguous:
             kind = "a ridge: a pose" if rival[3] else "a second peak"
             reason = (f"ambiguous, {kind} {rival[0]:.2f} m / {rival[1]:.1f}° away scores "
                       f"{rival[2]:.2f} against the best {scores[0]:.2f}")
         pose = best
         iterations = len(nodes)
+        raw = scan_points(moving)
         if p.refine_iterations:
-            refined = refine_point_to_line(model, src, best, iterations=p.refine_iterations,
+            refined = refine_point_to_line(model, raw, best, iterations=p.refine_iterations,
                                            correspondence_m=p.inlier_distance_m + 2 * p.sigma_m, trim_fraction=0.8,
                                            max_shift_m=4 * p.resolution_m)
             pose = best if refined is None else refined
         quality = model.assess_pair(moving, pose, p.limits())
-        reason = reason or verdict(quality, p.limits())
-        cov = fit_covariance(model, src, pose, p.inlier_distance_m, quality.rms_m)
-        return _result(pose, float(scores[0]), not reason, reason, iterations, start, cov)
+        fit = judge(quality, p.limits())
+        tentative = (ambiguous and not fit) or (not reason and weakly_constrained(quality, p.limits()))
+        reason = reason or fit
+        confidence = match_confidence(quality, p.limits())
+        cov = fit_covariance(model, raw, pose, p.inlier_distance_m, quality.rms_m)
+        result = _result(pose, float(scores[0]), not reason, reason, iterations, start, cov, confidence)
+        return replace(result, tentative=tentative) if tentative else result
+
+
+def thinned(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """One point per ``cell_m`` square (the first in beam order): the search scores walls, not how densely
+    the sonar happened to sample them near itself, and costs less."""
+    if len(points) == 0:
+        return points
+    keys = np.floor(points / cell_m).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
+def search_half_width(reference: RangeScan, moving: RangeScan, p: CorrelativeParams) -> float:
+    """Half-width of the global search square: ``search_m``, or the smaller sonar range of the pair
+    (two stations farther apart than that rarely share walls) capped at ``max_search_m``."""
+    if p.search_m is not None:
+        return p.search_m
+    return float(min(reference.max_range_m, moving.max_range_m, p.max_search_m))
 
 
 def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: CorrelativeParams,
@@ -254,7 +328,8 @@ def _valley(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, a: n
 
 
 def _result(pose: np.ndarray, score: float, converged: bool, reason: str, iterations: int, start: float,
-            covariance: np.ndarray | None = None) -> MatchResult:
+            covariance: np.ndarray | None = None, confidence: float | None = None) -> MatchResult:
     return MatchResult(i=-1, j=-1, dx_m=float(pose[0]), dy_m=float(pose[1]), dyaw_rad=float(pose[2]),
                        weight=score, converged=converged, iterations=iterations,
-                       seconds=time.perf_counter() - start, reason=reason, covariance=covariance)
+                       seconds=time.perf_counter() - start, reason=reason, covariance=covariance,
+                       confidence=confidence)

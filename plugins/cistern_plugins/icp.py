@@ -20,6 +20,7 @@ from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.verification import judge, match_confidence
 from cistern_plugins.alignment import (
     ConvergenceParams,
     ReferenceModel,
@@ -30,7 +31,6 @@ from cistern_plugins.alignment import (
     scan_points,
     too_few_points,
     transform,
-    verdict,
     wrap,
 )
 
@@ -132,12 +132,13 @@ class ICPMatcher:
                       tolerance_m=p.tolerance_m)
         quality = model.assess_pair(moving, out.pose, p.limits())
         reason = "" if out.settled else f"did not settle in {p.max_iterations} iterations"
-        reason = reason or verdict(quality, p.limits())
+        reason = reason or judge(quality, p.limits())
         return MatchResult(
             i=-1, j=-1, dx_m=float(out.pose[0]), dy_m=float(out.pose[1]), dyaw_rad=float(out.pose[2]),
             weight=quality.inlier_ratio, converged=not reason, iterations=out.iterations,
             seconds=time.perf_counter() - start, reason=reason,
             covariance=fit_covariance(model, src, out.pose, p.inlier_distance_m, quality.rms_m),
+            confidence=match_confidence(quality, p.limits()),
         )
 
 

@@ -38,6 +38,7 @@ from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
 from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.verification import judge, match_confidence
 from cistern_plugins.alignment import (
     ConvergenceParams,
     ReferenceModel,
@@ -45,7 +46,6 @@ from cistern_plugins.alignment import (
     scan_points,
     too_few_points,
     transform_many,
-    verdict,
 )
 from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
@@ -145,7 +145,7 @@ class ParticleICPMatcher:
         quality = model.assess_pair(moving, estimate, p.limits())
         reason = "" if settled else (
             f"particles did not converge in {p.iterations} iterations (spread {std_avg[-1]:.3f} m)")
-        reason = reason or verdict(quality, p.limits())
+        reason = reason or judge(quality, p.limits())
         history = MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snaps), tuple(snap_its))
         cov = np.cov(poses.T, aweights=w) if len(poses) > 3 else None
         fit_cov = fit_covariance(model, src, estimate, p.inlier_distance_m, quality.rms_m)
@@ -155,6 +155,7 @@ class ParticleICPMatcher:
             i=-1, j=-1, dx_m=float(estimate[0]), dy_m=float(estimate[1]), dyaw_rad=float(estimate[2]),
             weight=quality.inlier_ratio, converged=not reason, iterations=it,
             seconds=time.perf_counter() - start, reason=reason, covariance=cov, history=history,
+            confidence=match_confidence(quality, p.limits()),
         )
 
 

@@ -138,6 +138,7 @@ class PFParams(ConvergenceParams):
     is not used: ``min_beams`` refuses scans with too few echoes)."""
 
     cell_m: float = Field(0.05, gt=0, description="map cell size r_c (m); sigma_c = 2 r_c")
+    calibrated: bool = Field(False, description="verify_fit uses the fixed limits below, not the calibrated model")
     n_particles: int = Field(500, ge=10, le=100_000, description="Num_Particles")
     l_init_m: float = Field(8.0, gt=0, description="side of the uniform initial square L_init (m)")
     theta_init_std_deg: float = Field(2.0, ge=0, description="std of the initial heading correction (deg)")

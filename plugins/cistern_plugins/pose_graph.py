@@ -35,17 +35,15 @@ returned unplaced with the reason.
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from collections.abc import Sequence
 from typing import ClassVar, Literal
 
-import gtsam
 import numpy as np
 from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
 from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.factor_graph import Edge, GraphNoise, poses_from_solution, solve_gated, spanning_tree
 
 
 class PoseGraphParams(StageParams):
@@ -88,10 +86,10 @@ class PoseGraphLocalizer:
         n = len(scans)
         good = _usable(matches, n)
         reference = _reference(n, good)
-        solved: dict[int, gtsam.Pose2] = {}
+        solved = {}
         if reference >= 0:
             _, result, kept = _solve_gated(n, good, reference, p)
-            solved = {k: result.atPose2(k) for k in _spanning_tree(n, kept, reference)}
+            solved = {k: result.atPose2(k) for k in spanning_tree(n, kept, reference)}
         out: list[tuple[int, int, MatchGuess | None]] = []
         for i, j in _pairs(n, range(2, p.window + 1), p):
             guess = None
@@ -111,26 +109,10 @@ class PoseGraphLocalizer:
         if reference < 0:
             reasons = tuple("no converged match" for _ in range(n))
             return Poses(np.full((n, 2), np.nan), yaw, np.zeros(n, bool), reasons, -1, None)
-        graph, result, good = _solve_gated(n, list(good), reference, p)
-        initial = _spanning_tree(n, good, reference)
-        placed = np.array([k in initial for k in range(n)])
-        marginals = gtsam.Marginals(graph, result)
-        xy = np.full((n, 2), np.nan)
-        cov = np.full((n, 3, 3), np.nan)
-        out_yaw = yaw.copy()
-        for k in range(n):
-            if not placed[k]:
-                continue
-            pose = result.atPose2(k)
-            xy[k] = (pose.x(), pose.y())
-            out_yaw[k] = yaw[k] + pose.theta()
-            rot = np.eye(3)
-            c, s = math.cos(pose.theta()), math.sin(pose.theta())
-            rot[:2, :2] = [[c, -s], [s, c]]
-            cov[k] = rot @ marginals.marginalCovariance(k) @ rot.T
-        reasons = tuple("" if placed[k] else f"no converged path of matches to reference scan {reference}"
-                        for k in range(n))
-        return Poses(xy, out_yaw, placed, reasons, reference, cov)
+        graph, result, kept = _solve_gated(n, list(good), reference, p)
+        placed = set(spanning_tree(n, kept, reference))
+        reasons = [f"no converged path of matches to reference scan {reference}"] * n
+        return poses_from_solution(scans, graph, result, placed, reference, reasons)
 
 
 def _pairs(n_scans: int, gaps: range, p: PoseGraphParams) -> list[tuple[int, int]]:
@@ -149,38 +131,19 @@ def _usable(matches: Sequence[MatchResult], n: int) -> list[MatchResult]:
             and np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all()]
 
 
+def _noise(p: PoseGraphParams) -> GraphNoise:
+    return GraphNoise(p.robust, p.robust_k, p.sigma_xy_m, p.sigma_yaw_deg, p.min_sigma_xy_m, p.compass_sigma_deg,
+                      p.max_iterations)
+
+
+def _edges(good: Sequence[MatchResult], p: PoseGraphParams) -> list[Edge]:
+    noise = _noise(p)
+    return [Edge.of_match(m, noise) for m in good]
+
+
 def _solve_gated(n: int, good: list[MatchResult], reference: int, p: PoseGraphParams):
     """Solve, then drop the worst match while its squared Mahalanobis residual exceeds the gate."""
-    for _ in range(p.gate_rounds + 1):
-        initial = _spanning_tree(n, good, reference)
-        graph, values = _build_graph(good, initial, reference, p)
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm(p)).optimize()
-        chi2 = [_chi2(m, result, p) if m.i in initial and m.j in initial else 0.0 for m in good]
-        worst = int(np.argmax(chi2)) if chi2 else -1
-        if worst < 0 or chi2[worst] <= p.gate_chi2 or len(good) <= 1:
-            break
-        good = good[:worst] + good[worst + 1:]
-    return graph, result, good
-
-
-def _chi2(m: MatchResult, result: gtsam.Values, p: PoseGraphParams) -> float:
-    """Squared Mahalanobis distance of a match from the solution (without the robust loss)."""
-    rel = result.atPose2(m.i).between(result.atPose2(m.j))
-    err = np.array([rel.x() - m.dx_m, rel.y() - m.dy_m, (rel.theta() - m.dyaw_rad + math.pi) % (2 * math.pi) - math.pi])
-    cov = _covariance(m, p)
-    return float(err @ np.linalg.solve(cov, err))
-
-
-def _covariance(m: MatchResult, p: PoseGraphParams) -> np.ndarray:
-    if m.covariance is not None and np.isfinite(m.covariance).all():
-        return 0.5 * (m.covariance + m.covariance.T) + np.diag([p.min_sigma_xy_m**2] * 2 + [math.radians(0.2) ** 2])
-    return np.diag([p.sigma_xy_m**2, p.sigma_xy_m**2, math.radians(p.sigma_yaw_deg) ** 2])
-
-
-def _lm(p: PoseGraphParams) -> gtsam.LevenbergMarquardtParams:
-    lm = gtsam.LevenbergMarquardtParams()
-    lm.setMaxIterations(p.max_iterations)
-    return lm
+    return solve_gated(n, _edges(good, p), reference, _noise(p), p.gate_chi2, p.gate_rounds)
 
 
 def _reference(n: int, good: Sequence[MatchResult]) -> int:
@@ -205,47 +168,3 @@ def _reference(n: int, good: Sequence[MatchResult]) -> int:
     sizes = np.bincount(roots, minlength=n)
     largest = roots == roots[np.argmax(np.where(counts > 0, sizes[roots], 0))]
     return int(np.argmax(np.where(largest, counts, -1)))
-
-
-def _spanning_tree(n: int, good: Sequence[MatchResult], reference: int) -> dict[int, gtsam.Pose2]:
-    """Initial poses by composing matches breadth-first from the reference."""
-    adj: dict[int, list[tuple[int, gtsam.Pose2]]] = {k: [] for k in range(n)}
-    for m in good:
-        z = gtsam.Pose2(m.dx_m, m.dy_m, m.dyaw_rad)
-        adj[m.i].append((m.j, z))
-        adj[m.j].append((m.i, z.inverse()))
-    poses = {reference: gtsam.Pose2(0.0, 0.0, 0.0)}
-    queue = deque([reference])
-    while queue:
-        a = queue.popleft()
-        for b, z in adj[a]:
-            if b not in poses:
-                poses[b] = poses[a].compose(z)
-                queue.append(b)
-    return poses
-
-
-def _noise(m: MatchResult, p: PoseGraphParams) -> gtsam.noiseModel.Base:
-    base = gtsam.noiseModel.Gaussian.Covariance(_covariance(m, p))
-    if p.robust == "none":
-        return base
-    est = (gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k) if p.robust == "huber"
-           else gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k))
-    return gtsam.noiseModel.Robust.Create(est, base)
-
-
-def _build_graph(good: Sequence[MatchResult], initial: dict[int, gtsam.Pose2], reference: int,
-                 p: PoseGraphParams) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-6]))
-    graph.add(gtsam.PriorFactorPose2(reference, gtsam.Pose2(0, 0, 0), anchor))
-    compass = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e4, 1e4, math.radians(p.compass_sigma_deg)]))
-    for k, pose in sorted(initial.items()):
-        values.insert(k, pose)
-        if k != reference:
-            graph.add(gtsam.PriorFactorPose2(k, gtsam.Pose2(0, 0, 0), compass))
-    for m in good:
-        if m.i in initial and m.j in initial:
-            graph.add(gtsam.BetweenFactorPose2(m.i, m.j, gtsam.Pose2(m.dx_m, m.dy_m, m.dyaw_rad), _noise(m, p)))
-    return graph, values

@@ -1,0 +1,155 @@
+"""The GTSAM factor graph the graph localizers (``pose-graph``, ``site-graph``) solve.
+
+Model: one ``Pose2`` variable per scan, ``X_k = (x_k, y_k, c_k)`` with ``(x_k, y_k)`` the map-frame
+position and ``c_k`` the correction added to the compass yaw. A converged match ``(i, j)`` measures
+``d_ij`` in scan i's compass frame and ``dyaw``; with i's correction ``c_i`` the map-frame displacement
+is ``R(c_i) d_ij``, which is exactly GTSAM's ``BetweenFactorPose2`` measurement ``X_i^-1 X_j = (d_ij,
+dyaw)``. Each factor's noise is the match's covariance (floored at ``min_sigma_xy_m``, or default sigmas
+when the matcher gives none), optionally wrapped in a robust M-estimator. Every correction ``c_k`` has a
+prior of ``compass_sigma_deg`` (the compass is trusted up to that), and the reference scan is anchored
+at the origin. Levenberg–Marquardt solves the graph; ``gtsam.Marginals`` gives each scan's covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from cistern_archive.pipeline.contracts import MatchResult, Poses
+from cistern_archive.sonar.scan import RangeScan
+
+
+@dataclass(frozen=True)
+class GraphNoise:
+    """Noise settings of the factor graph (see the module docstring)."""
+
+    robust: str = "huber"
+    robust_k: float = 1.345
+    sigma_xy_m: float = 0.05
+    sigma_yaw_deg: float = 1.0
+    min_sigma_xy_m: float = 0.03
+    compass_sigma_deg: float = 2.0
+    max_iterations: int = 100
+
+
+@dataclass(frozen=True)
+class Edge:
+    """One relative-pose measurement between scans ``i`` and ``j``: ``X_i^-1 X_j = z``."""
+
+    i: int
+    j: int
+    z: np.ndarray
+    covariance: np.ndarray
+
+    @classmethod
+    def of_match(cls, m: MatchResult, noise: GraphNoise) -> "Edge":
+        return cls(m.i, m.j, np.array([m.dx_m, m.dy_m, m.dyaw_rad], dtype=np.float64), match_covariance(m, noise))
+
+
+def match_covariance(m: MatchResult, noise: GraphNoise) -> np.ndarray:
+    """The covariance a match's factor gets: the matcher's own, floored, or the default sigmas."""
+    if m.covariance is not None and np.isfinite(m.covariance).all():
+        floor = np.diag([noise.min_sigma_xy_m**2] * 2 + [math.radians(0.2) ** 2])
+        return 0.5 * (m.covariance + m.covariance.T) + floor
+    return np.diag([noise.sigma_xy_m**2, noise.sigma_xy_m**2, math.radians(noise.sigma_yaw_deg) ** 2])
+
+
+def wrap(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+def spanning_tree(n: int, edges: Sequence[Edge], reference: int) -> dict[int, gtsam.Pose2]:
+    """Initial poses by composing edges breadth-first from the reference."""
+    adj: dict[int, list[tuple[int, gtsam.Pose2]]] = {k: [] for k in range(n)}
+    for e in edges:
+        z = gtsam.Pose2(*e.z)
+        adj[e.i].append((e.j, z))
+        adj[e.j].append((e.i, z.inverse()))
+    poses = {reference: gtsam.Pose2(0.0, 0.0, 0.0)}
+    queue = deque([reference])
+    while queue:
+        a = queue.popleft()
+        for b, z in adj[a]:
+            if b not in poses:
+                poses[b] = poses[a].compose(z)
+                queue.append(b)
+    return poses
+
+
+def _noise_model(e: Edge, noise: GraphNoise) -> gtsam.noiseModel.Base:
+    base = gtsam.noiseModel.Gaussian.Covariance(e.covariance)
+    if noise.robust == "none":
+        return base
+    est = (gtsam.noiseModel.mEstimator.Huber.Create(noise.robust_k) if noise.robust == "huber"
+           else gtsam.noiseModel.mEstimator.Cauchy.Create(noise.robust_k))
+    return gtsam.noiseModel.Robust.Create(est, base)
+
+
+def solve(n: int, edges: Sequence[Edge], reference: int, noise: GraphNoise,
+          initial: dict[int, gtsam.Pose2] | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict]:
+    """Solve the graph of the scans the edges join to ``reference``; returns (graph, values, initial)."""
+    initial = spanning_tree(n, edges, reference) if initial is None else initial
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-6]))
+    graph.add(gtsam.PriorFactorPose2(reference, gtsam.Pose2(0, 0, 0), anchor))
+    compass = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e4, 1e4, math.radians(noise.compass_sigma_deg)]))
+    for k, pose in sorted(initial.items()):
+        values.insert(k, pose)
+        if k != reference:
+            graph.add(gtsam.PriorFactorPose2(k, gtsam.Pose2(0, 0, 0), compass))
+    for e in edges:
+        if e.i in initial and e.j in initial:
+            graph.add(gtsam.BetweenFactorPose2(e.i, e.j, gtsam.Pose2(*e.z), _noise_model(e, noise)))
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setMaxIterations(noise.max_iterations)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, lm).optimize()
+    return graph, result, initial
+
+
+def chi2(e: Edge, values: gtsam.Values) -> float:
+    """Squared Mahalanobis distance of an edge from a solution (without the robust loss)."""
+    rel = values.atPose2(e.i).between(values.atPose2(e.j))
+    err = np.array([rel.x() - e.z[0], rel.y() - e.z[1], wrap(rel.theta() - e.z[2])])
+    return float(err @ np.linalg.solve(e.covariance, err))
+
+
+def solve_gated(n: int, edges: list[Edge], reference: int, noise: GraphNoise, gate_chi2: float,
+                gate_rounds: int, keep: frozenset[int] = frozenset()):
+    """Solve, then drop the worst edge while its squared Mahalanobis residual exceeds ``gate_chi2``
+    (edges whose index is in ``keep`` are never dropped); returns (graph, values, edges kept)."""
+    for _ in range(gate_rounds + 1):
+        graph, result, initial = solve(n, edges, reference, noise)
+        scores = [chi2(e, result) if k not in keep and e.i in initial and e.j in initial else 0.0
+                  for k, e in enumerate(edges)]
+        worst = int(np.argmax(scores)) if scores else -1
+        if worst < 0 or scores[worst] <= gate_chi2 or len(edges) <= 1:
+            break
+        edges = edges[:worst] + edges[worst + 1:]
+        keep = frozenset(k if k < worst else k - 1 for k in keep if k != worst)
+    return graph, result, edges
+
+
+def poses_from_solution(scans: Sequence[RangeScan], graph: gtsam.NonlinearFactorGraph, result: gtsam.Values,
+                        placed_keys: set[int], reference: int, reasons: Sequence[str]) -> Poses:
+    """:class:`Poses` of the solved scans, with marginal covariances rotated into the map frame."""
+    n = len(scans)
+    yaw = np.array([s.yaw_rad for s in scans], dtype=np.float64)
+    placed = np.array([k in placed_keys for k in range(n)])
+    xy = np.full((n, 2), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    marginals = gtsam.Marginals(graph, result)
+    for k in sorted(placed_keys):
+        pose = result.atPose2(k)
+        xy[k] = (pose.x(), pose.y())
+        yaw[k] = yaw[k] + pose.theta()
+        rot = np.eye(3)
+        c, s = math.cos(pose.theta()), math.sin(pose.theta())
+        rot[:2, :2] = [[c, -s], [s, c]]
+        cov[k] = rot @ marginals.marginalCovariance(k) @ rot.T
+    return Poses(xy, yaw, placed, tuple("" if placed[k] else reasons[k] for k in range(n)), reference, cov)

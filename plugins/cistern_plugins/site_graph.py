@@ -1,0 +1,355 @@
+"""``site-graph``: every scan placed by a consistent set of matches, not by a chain of neighbours.
+
+McVicker et al. localise from neighbouring pairs (eqs. 7–10): one rejected neighbour pair unplaces every
+later scan, and one wrong pair that passed the matcher's test is averaged into the map. This localizer
+builds a graph over the whole site instead, in three steps.
+
+1. **Candidate pairs, in rounds** (:meth:`SiteGraphLocalizer.pairs`, :meth:`~SiteGraphLocalizer.guided_pairs`).
+   The first round matches every pair up to ``first_gap`` stations apart, both ways. Each later round
+   solves the graph of the matches so far and asks for (a) every pair of scans whose solved positions
+   are within ``reach`` (the smaller of the two sonar ranges times ``reach_factor``) with a
+   :class:`~cistern_archive.pipeline.contracts.MatchGuess` — loop closures proposed from a first solution,
+   as SLAM systems search around their odometry — and (b) for scans the graph does not join to the
+   reference yet, global matches (no guess) with the scans up to ``global_gap`` stations away, both ways.
+   Scans more than ``level_tolerance_m`` apart in depth are never matched: at different depths of a
+   bell-shaped cistern the walls differ, and the record's vertical ties (``below``) join the levels.
+
+2. **Consistent matches as a set** (:func:`consistent_edges`). Every converged match is an edge. An
+   edge gains support from every cycle it closes consistently: the reverse match of the same pair that
+   agrees with it, and every triangle of edges whose composition returns to the start within
+   ``consistency_m`` and ``consistency_deg`` (cycle consistency, as in Zach et al., CVPR 2010, and the
+   pairwise consistency of Mangelson et al., ICRA 2018, with cycles among the matches instead of
+   odometry). Groups of scans are then merged greedily, largest consensus first: between two groups,
+   the edges that agree on where one group lies in the other's frame form a cluster whose score is the
+   sum of ``1 + support`` over its edges; the best cluster of all merges its two groups. An edge that
+   disagrees with the merged geometry is rejected, with the distance by which it disagrees. A single
+   match may join two groups when nothing contradicts it — a scan is unplaced only when no consistent
+   chain of matches reaches it. A *tentative* match (not converged, but refused only for a rival peak
+   or a weak direction, ``MatchResult.tentative``) takes part only when a cycle with a converged match
+   corroborates it.
+
+3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
+   ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
+   and a χ² gate that drops the worst edge while its squared Mahalanobis residual exceeds ``gate_chi2``.
+   ``gtsam.Marginals`` gives each scan's covariance.
+
+Reasons name stations by their labels: an unplaced scan says which of its matches were rejected and why.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
+
+import gtsam
+import numpy as np
+from pydantic import Field
+
+from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
+from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.factor_graph import Edge, GraphNoise, match_covariance, poses_from_solution, solve_gated, wrap
+from cistern_plugins.factor_graph import spanning_tree
+from cistern_plugins.wls import vertical_ties
+
+
+class SiteGraphParams(StageParams):
+    """Parameters of :class:`SiteGraphLocalizer`."""
+
+    first_gap: int = Field(1, ge=1, description="first round: every pair up to this many stations apart")
+    global_gap: int = Field(4, ge=1, description="unjoined scans: global matches up to this many stations away")
+    reach_factor: float = Field(1.0, gt=0, description="loop candidates within this times the sonar range")
+    guess_radius_m: float = Field(0.5, gt=0, description="half-width of a guided match's search window")
+    level_tolerance_m: float = Field(0.25, ge=0, description="scans farther apart in depth are not matched")
+    consistency_m: float = Field(0.2, gt=0, description="cycle closure tolerance in translation")
+    consistency_deg: float = Field(3.0, gt=0, description="cycle closure tolerance in heading")
+    robust: Literal["huber", "cauchy", "none"] = "huber"
+    robust_k: float = Field(1.345, gt=0)
+    sigma_xy_m: float = Field(0.05, gt=0)
+    sigma_yaw_deg: float = Field(1.0, gt=0)
+    min_sigma_xy_m: float = Field(0.03, gt=0)
+    compass_sigma_deg: float = Field(2.0, gt=0)
+    max_iterations: int = Field(100, ge=1)
+    gate_chi2: float = Field(16.27, gt=0, description="99.9 % quantile of chi-square with 3 degrees of freedom")
+    gate_rounds: int = Field(3, ge=0)
+    tie_sigma_m: float = Field(0.02, gt=0, description="horizontal sigma of a vertical tie")
+    below: dict[str, str] = Field(default_factory=dict,
+                                  description="vertical ties: station -> station it was taken directly below")
+
+    def noise(self) -> GraphNoise:
+        return GraphNoise(self.robust, self.robust_k, self.sigma_xy_m, self.sigma_yaw_deg, self.min_sigma_xy_m,
+                          self.compass_sigma_deg, self.max_iterations)
+
+
+@dataclass
+class Graph:
+    """Where the consensus left the site: accepted edges, groups, poses within each group, and why
+    each rejected match was rejected."""
+
+    edges: list[Edge]
+    ties: list[Edge]
+    group: list[int]
+    pose: list[gtsam.Pose2]
+    rejected: dict[tuple[int, int], str] = field(default_factory=dict)
+
+    def members(self, g: int) -> list[int]:
+        return [k for k, h in enumerate(self.group) if h == g]
+
+
+class SiteGraphLocalizer:
+    """Site-wide graph of consistent matches, solved by robust least squares (the ``site-graph`` localizer)."""
+
+    name: ClassVar[str] = "site-graph"
+    Params: ClassVar[type[StageParams]] = SiteGraphParams
+
+    def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:
+        """First round: every pair up to ``first_gap`` stations apart, nearest first, both ways."""
+        p = SiteGraphParams.of(params)
+        out: list[tuple[int, int]] = []
+        for gap in range(1, p.first_gap + 1):
+            for i in range(n_scans - gap):
+                out += [(i, i + gap), (i + gap, i)]
+        return out
+
+    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
+                     params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
+        """Later rounds: loop candidates within reach of the solution so far (with a guess) and global
+        matches for the scans not yet joined to the reference group (module docstring, step 1)."""
+        p = SiteGraphParams.of(params)
+        n = len(scans)
+        graph = consistent_edges(scans, matches, p)
+        tried = {frozenset((m.i, m.j)) for m in matches}
+        out: list[tuple[int, int, MatchGuess | None]] = []
+        for i in range(n):
+            for j in range(i + 1, n):
+                if frozenset((i, j)) in tried or not same_level(scans[i], scans[j], p):
+                    continue
+                if graph.group[i] == graph.group[j]:
+                    rel = graph.pose[i].between(graph.pose[j])
+                    reach = p.reach_factor * min(scans[i].max_range_m, scans[j].max_range_m)
+                    if math.hypot(rel.x(), rel.y()) <= reach:
+                        out.append((i, j, MatchGuess(rel.x(), rel.y(), rel.theta(), p.guess_radius_m)))
+                elif j - i <= p.global_gap:
+                    out += [(i, j, None), (j, i, None)]
+        return out
+
+    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
+        """Place every scan a consistent chain of matches joins to the reference (module docstring)."""
+        p = SiteGraphParams.of(params)
+        n = len(scans)
+        graph = consistent_edges(scans, matches, p)
+        main = _largest_group(graph)
+        members = graph.members(main)
+        reference = min(members) if members and (len(members) > 1 or n == 1) else -1
+        labels = [s.station or str(k) for k, s in enumerate(scans)]
+        if reference < 0:
+            reasons = [unplaced_reason(k, -1, graph, matches, labels) for k in range(n)]
+            yaw = np.array([s.yaw_rad for s in scans], dtype=np.float64)
+            return Poses(np.full((n, 2), np.nan), yaw, np.zeros(n, bool), tuple(reasons), -1, None)
+        edges = graph.ties + graph.edges
+        keep = frozenset(range(len(graph.ties)))
+        solved, result, kept = solve_gated(n, edges, reference, p.noise(), p.gate_chi2, p.gate_rounds, keep)
+        for e in edges:
+            if not any(e is k for k in kept):
+                graph.rejected[(e.i, e.j)] = "dropped by the χ² gate of the site's least-squares fit"
+        placed = set(spanning_tree(n, kept, reference))
+        reasons = [unplaced_reason(k, reference, graph, matches, labels) for k in range(n)]
+        return poses_from_solution(scans, solved, result, placed, reference, reasons)
+
+
+def same_level(a: RangeScan, b: RangeScan, p: SiteGraphParams) -> bool:
+    """Whether two scans were taken at one depth level (both depths unknown counts as one level)."""
+    if not (math.isfinite(a.depth_m) and math.isfinite(b.depth_m)):
+        return True
+    return abs(a.depth_m - b.depth_m) <= p.level_tolerance_m
+
+
+def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
+                p: SiteGraphParams) -> tuple[list[Edge], list[bool]]:
+    """The converged and the tentative matches between distinct scans of one depth level, as edges, and
+    for each whether it converged (the last one wins when a directed pair was matched twice)."""
+    n = len(scans)
+    noise = p.noise()
+    out: dict[tuple[int, int], tuple[Edge, bool]] = {}
+    for m in matches:
+        if not ((m.converged or m.tentative) and 0 <= m.i < n and 0 <= m.j < n and m.i != m.j):
+            continue
+        if not np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all() or not same_level(scans[m.i], scans[m.j], p):
+            continue
+        out[(m.i, m.j)] = (Edge.of_match(m, noise), bool(m.converged))
+    return [e for e, _ in out.values()], [strong for _, strong in out.values()]
+
+
+def tie_edges(scans: Sequence[RangeScan], p: SiteGraphParams) -> list[Edge]:
+    """The record's vertical ties as edges of zero displacement."""
+    cov = np.diag([p.tie_sigma_m**2, p.tie_sigma_m**2, math.radians(p.compass_sigma_deg) ** 2])
+    return [Edge(a, b, np.zeros(3), cov) for a, b in vertical_ties(scans, p.below)]
+
+
+def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult], p: SiteGraphParams) -> Graph:
+    """Step 2 of the module docstring: cycle support, then greedy consensus merging of scan groups."""
+    n = len(scans)
+    edges, strong = match_edges(scans, matches, p)
+    ties = tie_edges(scans, p)
+    support = cycle_support(edges, strong, p)
+    graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
+    for t in ties:
+        _merge(graph, t.i, t.j, gtsam.Pose2(*t.z))
+    pending = [k for k in range(len(edges)) if strong[k] or support[k] > 0]
+    for k in range(len(edges)):
+        if not (strong[k] or support[k] > 0):
+            graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
+    while True:
+        best = _best_cluster(graph, edges, support, pending, p)
+        if best is None:
+            break
+        members, (i, j, z) = best
+        _merge(graph, i, j, z)
+        graph.edges += [edges[k] for k in members]
+        pending = [k for k in pending if k not in members]
+    for k in pending:
+        e = edges[k]
+        off = _disagreement(graph, e)
+        if off is None or _within(off, p, graph, e):
+            graph.edges.append(e)
+        else:
+            graph.rejected[(e.i, e.j)] = (f"inconsistent with the other matches of the site: {off[0]:.2f} m and "
+                                          f"{math.degrees(off[1]):.1f}° off")
+    return graph
+
+
+def cycle_support(edges: Sequence[Edge], strong: Sequence[bool], p: SiteGraphParams) -> list[int]:
+    """For every edge, how many consistent cycles it closes: an agreeing reverse match and every
+    consistent triangle of edges (module docstring, step 2). A tentative edge (``strong`` false) counts
+    only the cycles in which another edge is a converged match: tentative matches cannot vouch for each
+    other."""
+    rel: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
+    for k, e in enumerate(edges):
+        z = gtsam.Pose2(*e.z)
+        rel.setdefault((e.i, e.j), []).append((k, z))
+        rel.setdefault((e.j, e.i), []).append((k, z.inverse()))
+    support = [0] * len(edges)
+
+    def credit(cycle: Sequence[int]) -> None:
+        for k in cycle:
+            if strong[k] or any(strong[k2] for k2 in cycle if k2 != k):
+                support[k] += 1
+
+    for k, e in enumerate(edges):
+        z = gtsam.Pose2(*e.z)
+        for k2, back in rel.get((e.i, e.j), []):
+            if k2 > k and _close(z.between(back), p, z):
+                credit((k, k2))
+    nodes = sorted({a for a, _ in rel})
+    for a in nodes:
+        for b in nodes:
+            if b <= a or (a, b) not in rel:
+                continue
+            for c in nodes:
+                if c <= b or (b, c) not in rel or (a, c) not in rel:
+                    continue
+                for kab, zab in rel[(a, b)]:
+                    for kbc, zbc in rel[(b, c)]:
+                        for kac, zac in rel[(a, c)]:
+                            if len({kab, kbc, kac}) == 3 and _close(zab.compose(zbc).between(zac), p, zac):
+                                credit((kab, kbc, kac))
+    return support
+
+
+def _close(residual: gtsam.Pose2, p: SiteGraphParams, span: gtsam.Pose2) -> bool:
+    """Whether a cycle's residual motion is within tolerance; the heading tolerance's lever arm over the
+    span of the cycle is allowed in translation."""
+    lever = math.hypot(span.x(), span.y()) * math.sin(math.radians(p.consistency_deg))
+    return (math.hypot(residual.x(), residual.y()) <= p.consistency_m + lever
+            and abs(wrap(residual.theta())) <= math.radians(p.consistency_deg))
+
+
+def _frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
+    """Where edge ``e`` puts the group of ``e.j`` in the frame of the group of ``e.i``."""
+    return graph.pose[e.i].compose(gtsam.Pose2(*e.z)).compose(graph.pose[e.j].inverse())
+
+
+def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], pending: Sequence[int],
+                  p: SiteGraphParams):
+    """The largest-consensus cluster of pending edges between two groups, as (edge indices, (i, j, z))
+    ready for :func:`_merge`, or ``None`` when no pending edge joins two groups."""
+    by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
+    for k in pending:
+        e = edges[k]
+        gi, gj = graph.group[e.i], graph.group[e.j]
+        if gi == gj:
+            continue
+        offset = _frame_offset(graph, e)
+        key, offset = ((gi, gj), offset) if gi < gj else ((gj, gi), offset.inverse())
+        by_pair.setdefault(key, []).append((k, offset))
+    best, best_score = None, -1.0
+    for (ga, gb), items in sorted(by_pair.items()):
+        for k, offset in items:
+            members = [k2 for k2, o2 in items if _close(offset.between(o2), p, offset)]
+            score = sum(1 + support[k2] for k2 in members)
+            if score > best_score:
+                best_score = score
+                best = (members, ga, gb, offset)
+    if best is None:
+        return None
+    members, ga, gb, offset = best
+    anchor_a = graph.members(ga)[0]
+    anchor_b = graph.members(gb)[0]
+    z = graph.pose[anchor_a].inverse().compose(offset).compose(graph.pose[anchor_b])
+    return members, (anchor_a, anchor_b, z)
+
+
+def _merge(graph: Graph, i: int, j: int, z: gtsam.Pose2) -> None:
+    """Join the group of ``j`` to the group of ``i`` so that ``X_i^-1 X_j = z``."""
+    gi, gj = graph.group[i], graph.group[j]
+    if gi == gj:
+        return
+    offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+    for k in graph.members(gj):
+        graph.pose[k] = offset.compose(graph.pose[k])
+        graph.group[k] = gi
+
+
+def _disagreement(graph: Graph, e: Edge) -> tuple[float, float] | None:
+    """How far an edge between scans of one group is from the group's geometry (m, rad), or ``None``
+    when its scans are in different groups."""
+    if graph.group[e.i] != graph.group[e.j]:
+        return None
+    residual = graph.pose[e.i].between(graph.pose[e.j]).between(gtsam.Pose2(*e.z))
+    return math.hypot(residual.x(), residual.y()), abs(wrap(residual.theta()))
+
+
+def _within(off: tuple[float, float], p: SiteGraphParams, graph: Graph, e: Edge) -> bool:
+    rel = graph.pose[e.i].between(graph.pose[e.j])
+    lever = math.hypot(rel.x(), rel.y()) * math.sin(math.radians(p.consistency_deg))
+    return off[0] <= p.consistency_m + lever and off[1] <= math.radians(p.consistency_deg)
+
+
+def _largest_group(graph: Graph) -> int:
+    """The group with most scans (the one of the lowest scan index on ties)."""
+    sizes: dict[int, int] = {}
+    for g in graph.group:
+        sizes[g] = sizes.get(g, 0) + 1
+    return max(sizes, key=lambda g: (sizes[g], -min(graph.members(g))))
+
+
+def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[MatchResult], labels: Sequence[str]) -> str:
+    """Why scan ``k`` is not placed, naming stations: its matches with the placed part of the site and
+    what became of each (the first three)."""
+    if reference >= 0 and graph.group[k] == graph.group[reference]:
+        return ("its only consistent matches were dropped by the least-squares fit's χ² gate; "
+                f"no chain of matches joins it to the reference station {labels[reference]}")
+    target = f"the reference station {labels[reference]}" if reference >= 0 else "any other station"
+    notes = []
+    for m in matches:
+        if k not in (m.i, m.j) or not (0 <= m.i < len(labels) and 0 <= m.j < len(labels)):
+            continue
+        pair = f"{labels[m.i]} → {labels[m.j]}"
+        if m.converged:
+            why = graph.rejected.get((m.i, m.j), "joins it only to stations that are themselves unplaced")
+        else:
+            why = m.reason or "not converged"
+        notes.append(f"{pair}: {why}")
+    detail = "; ".join(notes[:3]) + (f"; and {len(notes) - 3} more" if len(notes) > 3 else "")
+    return f"no consistent chain of matches to {target}" + (f" ({detail})" if detail else " (no pair was matched)")

@@ -1,0 +1,118 @@
+"""Site-graph localizer: consensus over cycles, a chain that survives a failed neighbour pair, wrong
+matches rejected as a set, tentative matches only with corroboration, vertical ties, station labels."""
+
+import numpy as np
+
+from cistern_archive.pipeline.contracts import MatchResult
+from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
+
+TRUTH = np.array([[0.0, 0.0], [1.5, 0.0], [3.0, 0.5], [4.5, 0.2], [6.0, 0.0], [7.5, 0.4]])
+
+
+def _scans(n, depths=None, max_range=5.0):
+    depths = depths or [1.0] * n
+    return [RangeScan(np.zeros(3), np.ones(3), 0.0, depths[k], max_range, 0.05, 0.05, station=f"s{k + 1}")
+            for k in range(n)]
+
+
+def _match(i, j, *, offset=(0.0, 0.0), converged=True, tentative=False, sigma=0.0, rng=None):
+    d = TRUTH[j] - TRUTH[i] + np.asarray(offset)
+    if sigma:
+        d = d + rng.normal(0, sigma, 2)
+    return MatchResult(i, j, float(d[0]), float(d[1]), 0.0, 1.0, converged, 1, 0.0,
+                       reason="" if converged else "ambiguous, a second peak", tentative=tentative)
+
+
+def _placed_error(poses):
+    return np.abs((poses.xy_m - poses.xy_m[0]) - TRUTH[: len(poses.xy_m)])
+
+
+def test_first_round_is_the_neighbours_then_loop_candidates_within_reach_with_guesses():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams(guess_radius_m=0.4)
+    assert loc.pairs(4, p) == [(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)]
+    scans = _scans(4)
+    first = [_match(i, j) for i, j in loc.pairs(4, p)]
+    second = loc.guided_pairs(scans, first, p)
+    assert {(i, j) for i, j, _ in second} == {(0, 2), (1, 3), (0, 3)}  # all within 5 m
+    for i, j, guess in second:
+        assert guess.radius_m == 0.4
+        np.testing.assert_allclose([guess.dx_m, guess.dy_m], TRUTH[j] - TRUTH[i], atol=1e-9)
+    assert loc.guided_pairs(scans, first + [_match(i, j) for i, j, _ in second], p) == []
+
+
+def test_a_failed_neighbour_pair_gets_global_matches_beyond_it():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams(global_gap=2)
+    scans = _scans(5)
+    first = [_match(i, j, converged=(i, j) not in {(1, 2), (2, 1)}) for i, j in loc.pairs(5, p)]
+    asked = loc.guided_pairs(scans, first, p)
+    unguided = {(i, j) for i, j, g in asked if g is None}
+    assert {(0, 2), (2, 0), (1, 3), (3, 1)} <= unguided  # across the break, both ways
+    second = [_match(i, j) for i, j in sorted(unguided)]
+    poses = loc.localize(scans, first + second, p)
+    assert poses.placed.all()
+    assert _placed_error(poses).max() < 1e-6
+
+
+def test_a_wrong_match_is_rejected_as_inconsistent_with_the_cycles_it_breaks():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    rng = np.random.default_rng(0)
+    ms = [_match(i, j, sigma=0.01, rng=rng) for i in range(5) for j in range(5) if i != j and abs(i - j) <= 2]
+    ms.append(_match(0, 3, offset=(3.5, 0.0)))  # 3.5 m off, reported converged
+    graph = consistent_edges(_scans(5), ms, p)
+    assert (0, 3) in graph.rejected and "inconsistent" in graph.rejected[(0, 3)]
+    poses = loc.localize(_scans(5), ms, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 0.05
+
+
+def test_a_single_wrong_bridge_loses_to_the_consensus_of_two():
+    """Two groups joined by two agreeing matches and one wrong one: the wrong one is rejected."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    ms = [_match(0, 1), _match(1, 0), _match(3, 4), _match(4, 3), _match(4, 5), _match(5, 4), _match(3, 5),
+          _match(1, 3), _match(0, 3), _match(1, 4, offset=(2.0, 1.0))]
+    ms += [_match(1, 2), _match(2, 1)]
+    poses = loc.localize(_scans(6), ms, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+
+
+def test_tentative_matches_need_a_converged_match_to_corroborate_them():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    scans = _scans(3)
+    alone = [_match(0, 1), _match(1, 0), _match(1, 2, converged=False, tentative=True),
+             _match(2, 1, converged=False, tentative=True)]
+    poses = loc.localize(scans, alone, p)
+    assert poses.placed.tolist() == [True, True, False]
+    assert "s2 → s3" in poses.reasons[2] or "s3 → s2" in poses.reasons[2]
+    corroborated = alone[:2] + [_match(1, 2, converged=False, tentative=True), _match(2, 1)]
+    poses = loc.localize(scans, corroborated, p)
+    assert poses.placed.all()
+
+
+def test_unplaced_reasons_name_stations_not_indices():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    ms = [_match(0, 1), _match(1, 0), _match(1, 2, converged=False), _match(2, 1, converged=False)]
+    poses = loc.localize(_scans(3), ms, p)
+    assert not poses.placed[2]
+    assert "reference station s1" in poses.reasons[2] and "s2 → s3: ambiguous" in poses.reasons[2]
+
+
+def test_scans_at_other_depths_are_joined_by_vertical_ties_not_matches():
+    loc = SiteGraphLocalizer()
+    scans = _scans(4, depths=[1.0, 1.0, 2.0, 2.0])
+    p = SiteGraphParams(below={"s3": "s1"})
+    ms = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2), _match(1, 2, offset=(9.0, 9.0))]
+    poses = loc.localize(scans, ms, p)
+    assert poses.placed.all()
+    np.testing.assert_allclose(poses.xy_m[2], poses.xy_m[0], atol=0.02)  # tied: one horizontal position
+    asked = loc.guided_pairs(scans, ms, p)
+    assert all(scans[i].depth_m == scans[j].depth_m for i, j, _ in asked)
+
+
+def test_marginal_covariances_are_positive_definite():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    rng = np.random.default_rng(3)
+    ms = [_match(i, j, sigma=0.01, rng=rng) for i in range(4) for j in range(4) if i != j]
+    poses = loc.localize(_scans(4), ms, p)
+    assert poses.covariance.shape == (4, 3, 3)
+    for k in range(1, 4):
+        assert np.all(np.linalg.eigvalsh(poses.covariance[k]) > 0)
