@@ -30,9 +30,11 @@ def _placed_error(poses):
 
 def test_first_round_is_the_neighbours_then_loop_candidates_within_reach_with_guesses():
     loc, p = SiteGraphLocalizer(), SiteGraphParams(guess_radius_m=0.4)
-    assert loc.pairs(4, p) == [(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)]
     scans = _scans(4)
-    first = [_match(i, j) for i, j in loc.pairs(4, p)]
+    assert loc.pairs(4, p) == []
+    assert loc.guided_pairs(scans, [], p) == [(0, 1, None), (1, 0, None), (1, 2, None), (2, 1, None),
+                                              (2, 3, None), (3, 2, None)]
+    first = [_match(i, j) for i, j, _ in loc.guided_pairs(scans, [], p)]
     second = loc.guided_pairs(scans, first, p)
     assert {(i, j) for i, j, _ in second} == {(0, 2), (1, 3), (0, 3)}  # all within 5 m
     for i, j, guess in second:
@@ -44,7 +46,7 @@ def test_first_round_is_the_neighbours_then_loop_candidates_within_reach_with_gu
 def test_a_failed_neighbour_pair_gets_global_matches_beyond_it():
     loc, p = SiteGraphLocalizer(), SiteGraphParams(global_gap=2)
     scans = _scans(5)
-    first = [_match(i, j, converged=(i, j) not in {(1, 2), (2, 1)}) for i, j in loc.pairs(5, p)]
+    first = [_match(i, j, converged=(i, j) not in {(1, 2), (2, 1)}) for i, j, _ in loc.guided_pairs(scans, [], p)]
     asked = loc.guided_pairs(scans, first, p)
     unguided = {(i, j) for i, j, g in asked if g is None}
     assert {(0, 2), (2, 0), (1, 3), (3, 1)} <= unguided  # across the break, both ways
@@ -75,17 +77,19 @@ def test_a_single_wrong_bridge_loses_to_the_consensus_of_two():
     assert poses.placed.all() and _placed_error(poses).max() < 1e-6
 
 
-def test_tentative_matches_need_a_converged_match_to_corroborate_them():
+def test_tentative_matches_need_another_match_to_corroborate_them():
     loc, p = SiteGraphLocalizer(), SiteGraphParams()
     scans = _scans(3)
-    alone = [_match(0, 1), _match(1, 0), _match(1, 2, converged=False, tentative=True),
-             _match(2, 1, converged=False, tentative=True)]
+    alone = [_match(0, 1), _match(1, 0), _match(1, 2, converged=False, tentative=True)]
     poses = loc.localize(scans, alone, p)
     assert poses.placed.tolist() == [True, True, False]
-    assert "s2 → s3" in poses.reasons[2] or "s3 → s2" in poses.reasons[2]
-    corroborated = alone[:2] + [_match(1, 2, converged=False, tentative=True), _match(2, 1)]
-    poses = loc.localize(scans, corroborated, p)
+    assert "s2 → s3: ambiguous" in poses.reasons[2]
+    disagreeing = alone + [_match(2, 1, offset=(1.0, 0.0), converged=False, tentative=True)]
+    assert not loc.localize(scans, disagreeing, p).placed[2]
+    agreeing = alone + [_match(2, 1, converged=False, tentative=True)]
+    poses = loc.localize(scans, agreeing, p)
     assert poses.placed.all()
+    assert poses.covariance[2, 0, 0] > 5 * poses.covariance[1, 0, 0]  # placed, with its weaker evidence
 
 
 def test_unplaced_reasons_name_stations_not_indices():
@@ -104,8 +108,8 @@ def test_scans_at_other_depths_are_joined_by_vertical_ties_not_matches():
     poses = loc.localize(scans, ms, p)
     assert poses.placed.all()
     np.testing.assert_allclose(poses.xy_m[2], poses.xy_m[0], atol=0.02)  # tied: one horizontal position
-    asked = loc.guided_pairs(scans, ms, p)
-    assert all(scans[i].depth_m == scans[j].depth_m for i, j, _ in asked)
+    assert {(i, j) for i, j, _ in loc.guided_pairs(scans, [], p)} == {(0, 1), (1, 0), (2, 3), (3, 2)}
+    assert loc.guided_pairs(scans, ms, p) == []  # nothing else at one level is left to try
 
 
 def test_marginal_covariances_are_positive_definite():

@@ -115,6 +115,8 @@ class AlignmentQuality:
     rms_m: float
     constraint: float
     violation_ratio: float = 0.0
+    violation_min: float = 0.0
+    """The smaller of the two directions' violation ratios (``violation_ratio`` is the larger)."""
 
     @property
     def weak_std_m(self) -> float:
@@ -165,10 +167,17 @@ class ConvergenceParams(StageParams):
 
 
 def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
-                     max_range_m: float, inlier_distance_m: float) -> AlignmentQuality:
-    """Measure the fit of already transformed moving points ``moved`` against the reference points."""
+                     max_range_m: float, inlier_distance_m: float,
+                     visible: np.ndarray | None = None) -> AlignmentQuality:
+    """Measure the fit of already transformed moving points ``moved`` against the reference points.
+
+    The inlier share is taken over the *candidates*: the moving points within the reference sonar's
+    range and, when ``visible`` is given, that it could have seen (not behind one of its own walls).
+    """
     dist, idx = tree.query(moved, k=1)
     in_range = np.hypot(moved[:, 0], moved[:, 1]) <= max_range_m
+    if visible is not None:
+        in_range &= visible
     inlier = (dist <= inlier_distance_m) & in_range
     n_in = int(inlier.sum())
     if n_in < 3:
@@ -197,7 +206,12 @@ def verdict(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
     return ""
 
 
-CONE_DEFAULT = True
+GRAZING_DEG = 20.0
+"""Rays within this angle of a wall's plane meet it at grazing incidence (:meth:`FreeSpace.violations`)."""
+BLIND_RANGE_M = 0.7
+"""Walls closer than this to a sonar may hide in its blanking range (:meth:`FreeSpace.shadowed`)."""
+SHADOW_WIDTH_M = 0.1
+"""Width of the wall each of those echoes stands for."""
 
 
 class FreeSpace:
@@ -211,7 +225,7 @@ class FreeSpace:
     put 10–40 % of their wall points in each other's "free" space.
     """
 
-    def __init__(self, scan: RangeScan, *, cone: bool = CONE_DEFAULT):
+    def __init__(self, scan: RangeScan, *, cone: bool = True):
         angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
         order = np.argsort(angles, kind="stable")
         self.angles = angles[order]
@@ -221,10 +235,48 @@ class FreeSpace:
         half_cone = 0.5 * float(scan.beam_width_rad) if cone else 0.0
         self.ranges = _cone_minimum(self.angles, ranges, half_cone) if half_cone > 0 else ranges
 
-    def violations(self, points: np.ndarray, margin_m: float) -> tuple[int, int]:
-        """(points in observed free space, points on bearings with an echo); ``points`` relative to the station."""
+    def violations(self, points: np.ndarray, margin_m: float,
+                   normals: np.ndarray | None = None) -> tuple[int, int]:
+        """(points in observed free space, points checked); ``points`` relative to the station.
+
+        With the wall ``normals`` of the points (from the scan that saw them), a point whose wall this
+        sonar would meet at grazing incidence — the ray within ``GRAZING_DEG`` of the wall's plane — is
+        not checked: at grazing incidence the beam cone and the pulse smear the echo along the wall, so
+        the sonar's "free" range there says nothing about that wall (the jambs of an opening the
+        vehicle sits in, a wall seen edge-on through a doorway: walls seen from one side only).
+        """
         bad, checked = self._classify(points, margin_m)
+        if normals is not None and len(points):
+            rays = points / np.maximum(np.hypot(points[:, 0], points[:, 1]), 1e-9)[:, None]
+            face_on = np.abs(np.einsum("ij,ij->i", rays, normals)) >= math.sin(math.radians(GRAZING_DEG))
+            bad, checked = bad & face_on, checked & face_on
+        shadowed = self.shadowed(points)
+        bad, checked = bad & ~shadowed, checked & ~shadowed
         return int(bad.sum()), int(checked.sum())
+
+    def shadowed(self, points: np.ndarray) -> np.ndarray:
+        """Mask of points behind a wall (one of ``points`` itself) closer to this sonar than
+        ``BLIND_RANGE_M``: a sonar that close to a wall — in a tunnel or an opening 1 m wide — hears
+        nothing from it inside its blanking range and reports a farther echo on those bearings, so its
+        "free" space there runs through rock. Such points are not checked."""
+        r = np.hypot(points[:, 0], points[:, 1]) if len(points) else np.zeros(0)
+        near = r < BLIND_RANGE_M
+        if not near.any():
+            return np.zeros(len(points), dtype=bool)
+        a = np.arctan2(points[:, 1], points[:, 0])
+        half = np.arctan2(0.5 * SHADOW_WIDTH_M, np.maximum(r[near], 1e-3))
+        diff = np.abs(wrap_array(a[:, None] - a[near][None, :]))
+        return ((diff <= half[None, :]) & (r[:, None] > r[near][None, :] + 0.05)).any(axis=1)
+
+    def visible(self, points: np.ndarray, tolerance_m: float) -> np.ndarray:
+        """Mask of points (relative to the station) this sonar could have seen: not farther than its
+        echo on their bearing by more than ``tolerance_m`` (a point behind one of its walls is hidden,
+        neither evidence for a match nor against it — a scan that looks through an opening sees a
+        chamber the other scan's sonar cannot)."""
+        if len(self.angles) == 0 or len(points) == 0:
+            return np.ones(len(points), dtype=bool)
+        nearest, checked, r, r_echo = self._nearest(points)
+        return ~(checked & (r > r_echo + tolerance_m))
 
     def in_free_space(self, points: np.ndarray, margin_m: float) -> np.ndarray:
         """Mask of points (relative to the station) the sonar saw empty."""
@@ -234,6 +286,12 @@ class FreeSpace:
         if len(self.angles) == 0 or len(points) == 0:
             empty = np.zeros(len(points), dtype=bool)
             return empty, empty
+        _, checked, r, r_echo = self._nearest(points)
+        return checked & (r < r_echo - margin_m), checked
+
+    def _nearest(self, points: np.ndarray):
+        """For every point: the nearest beam, whether it is within the bearing tolerance and has an echo,
+        the point's range and that beam's (cone-eroded) echo range."""
         a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         k = np.searchsorted(self.angles, a) % len(self.angles)
         km = (k - 1) % len(self.angles)
@@ -244,8 +302,7 @@ class FreeSpace:
         r_echo = self.ranges[nearest]
         checked = (gap <= self.tolerance_rad) & np.isfinite(r_echo)
         r = np.hypot(points[:, 0], points[:, 1])
-        bad = checked & (r < r_echo - margin_m)
-        return bad, checked
+        return nearest, checked, r, r_echo
 
 
 def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:
@@ -294,22 +351,35 @@ class ReferenceModel:
     def assess_pair(self, moving: RangeScan, pose: np.ndarray, limits: ConvergenceThresholds) -> AlignmentQuality:
         """Fit of the moving scan placed by ``pose``, checked both ways: when the reference-onto-moving
         inlier share is the smaller one it is used (with the smaller of the two inlier counts and
-        constraints); the free-space violation ratio is the larger of the two directions."""
+        constraints); the free-space violation ratio is the larger of the two directions, counted over
+        the wall points each sonar could have seen face-on (:meth:`FreeSpace.violations`)."""
         src = scan_points(moving)
         moved = transform(src, pose)
-        q = self.assess(moved, limits.inlier_distance_m)
-        bad1, n1 = self.free.violations(moved, limits.free_space_margin_m)
+        seen = self.free.visible(moved, limits.free_space_margin_m)
+        q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
+                             seen) if self.tree is not None else self.assess(moved, limits.inlier_distance_m)
         back = transform(self.points, inverse(pose))
-        bad2, n2 = FreeSpace(moving).violations(back, limits.free_space_margin_m)
-        ratio = max(bad1 / n1 if n1 else 0.0, bad2 / n2 if n2 else 0.0)
-        if len(src) >= 3:  # the same fit seen from the moving scan: the smaller inlier share counts
-            mov_tree = cKDTree(src)
-            rq = assess_alignment(src, mov_tree, estimate_normals(src, mov_tree), back, float(moving.max_range_m),
-                                  limits.inlier_distance_m)
+        mov_free = FreeSpace(moving)
+        mov_tree = cKDTree(src) if len(src) >= 3 else None
+        mov_normals = estimate_normals(src, mov_tree) if mov_tree is not None else None
+        bad1, n1 = self.free.violations(moved, limits.free_space_margin_m,
+                                        None if mov_normals is None else rotate(mov_normals, pose[2]))
+        bad2, n2 = mov_free.violations(back, limits.free_space_margin_m,
+                                       rotate(self.normals, -pose[2]) if len(self.normals) else None)
+        ratios = (bad1 / n1 if n1 else 0.0, bad2 / n2 if n2 else 0.0)
+        if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
+            rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
+                                  mov_free.visible(back, limits.free_space_margin_m))
             if rq.inlier_ratio < q.inlier_ratio:
                 q = AlignmentQuality(min(q.inliers, rq.inliers), rq.candidates, q.n_points, q.rms_m,
                                      min(q.constraint, rq.constraint))
-        return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, ratio)
+        return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, max(ratios), min(ratios))
+
+
+def rotate(vectors: np.ndarray, angle: float) -> np.ndarray:
+    """Vectors (N, 2) turned counter-clockwise by ``angle``."""
+    c, s = math.cos(angle), math.sin(angle)
+    return vectors @ np.array([[c, s], [-s, c]])
 
 
 def too_few_points(reference: RangeScan, moving: RangeScan, minimum: int) -> str:

@@ -25,8 +25,10 @@ builds a graph over the whole site instead, in three steps.
    disagrees with the merged geometry is rejected, with the distance by which it disagrees. A single
    match may join two groups when nothing contradicts it — a scan is unplaced only when no consistent
    chain of matches reaches it. A *tentative* match (not converged, but refused only for a rival peak
-   or a weak direction, ``MatchResult.tentative``) takes part only when a cycle with a converged match
-   corroborates it.
+   or a weak direction, ``MatchResult.tentative``) takes part only when a consistent cycle corroborates
+   it (the reverse match of the pair agreeing with it counts), and with its covariance inflated by
+   ``tentative_variance_factor``: in a plain stretch of gallery, where every match is weak along the
+   axis, this places the scans with the honest, large marginal uncertainty instead of leaving them out.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
@@ -74,6 +76,8 @@ class SiteGraphParams(StageParams):
     gate_chi2: float = Field(16.27, gt=0, description="99.9 % quantile of chi-square with 3 degrees of freedom")
     gate_rounds: int = Field(3, ge=0)
     tie_sigma_m: float = Field(0.02, gt=0, description="horizontal sigma of a vertical tie")
+    tentative_variance_factor: float = Field(25.0, ge=1, description="a tentative match's covariance is "
+                                             "inflated by this, so converged matches dominate where they exist")
     below: dict[str, str] = Field(default_factory=dict,
                                   description="vertical ties: station -> station it was taken directly below")
 
@@ -104,20 +108,28 @@ class SiteGraphLocalizer:
     Params: ClassVar[type[StageParams]] = SiteGraphParams
 
     def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:
-        """First round: every pair up to ``first_gap`` stations apart, nearest first, both ways."""
-        p = SiteGraphParams.of(params)
-        out: list[tuple[int, int]] = []
+        """None: every round, the first included, needs the scans' depths (:meth:`guided_pairs`)."""
+        return []
+
+    def first_pairs(self, scans: Sequence[RangeScan], p: SiteGraphParams) -> list[tuple[int, int, None]]:
+        """First round: every pair of one depth level up to ``first_gap`` stations apart, nearest first,
+        both ways, without a guess."""
+        out: list[tuple[int, int, None]] = []
         for gap in range(1, p.first_gap + 1):
-            for i in range(n_scans - gap):
-                out += [(i, i + gap), (i + gap, i)]
+            for i in range(len(scans) - gap):
+                if same_level(scans[i], scans[i + gap], p):
+                    out += [(i, i + gap, None), (i + gap, i, None)]
         return out
 
     def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
                      params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
-        """Later rounds: loop candidates within reach of the solution so far (with a guess) and global
-        matches for the scans not yet joined to the reference group (module docstring, step 1)."""
+        """The first round (:meth:`first_pairs`) when nothing was matched yet; then loop candidates
+        within reach of the solution so far (with a guess) and global matches for the scans not yet
+        joined to the rest (module docstring, step 1)."""
         p = SiteGraphParams.of(params)
         n = len(scans)
+        if not matches:
+            return self.first_pairs(scans, p)
         graph = consistent_edges(scans, matches, p)
         tried = {frozenset((m.i, m.j)) for m in matches}
         out: list[tuple[int, int, MatchGuess | None]] = []
@@ -177,7 +189,10 @@ def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
             continue
         if not np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all() or not same_level(scans[m.i], scans[m.j], p):
             continue
-        out[(m.i, m.j)] = (Edge.of_match(m, noise), bool(m.converged))
+        edge = Edge.of_match(m, noise)
+        if not m.converged:
+            edge = Edge(edge.i, edge.j, edge.z, edge.covariance * p.tentative_variance_factor)
+        out[(m.i, m.j)] = (edge, bool(m.converged))
     return [e for e, _ in out.values()], [strong for _, strong in out.values()]
 
 
@@ -192,14 +207,14 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     n = len(scans)
     edges, strong = match_edges(scans, matches, p)
     ties = tie_edges(scans, p)
-    support = cycle_support(edges, strong, p)
+    support = cycle_support(edges, p)
     graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
     for t in ties:
         _merge(graph, t.i, t.j, gtsam.Pose2(*t.z))
     pending = [k for k in range(len(edges)) if strong[k] or support[k] > 0]
     for k in range(len(edges)):
         if not (strong[k] or support[k] > 0):
-            graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
+            graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no other match corroborates it"
     while True:
         best = _best_cluster(graph, edges, support, pending, p)
         if best is None:
@@ -219,11 +234,9 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     return graph
 
 
-def cycle_support(edges: Sequence[Edge], strong: Sequence[bool], p: SiteGraphParams) -> list[int]:
+def cycle_support(edges: Sequence[Edge], p: SiteGraphParams) -> list[int]:
     """For every edge, how many consistent cycles it closes: an agreeing reverse match and every
-    consistent triangle of edges (module docstring, step 2). A tentative edge (``strong`` false) counts
-    only the cycles in which another edge is a converged match: tentative matches cannot vouch for each
-    other."""
+    consistent triangle of edges (module docstring, step 2)."""
     rel: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k, e in enumerate(edges):
         z = gtsam.Pose2(*e.z)
@@ -233,8 +246,7 @@ def cycle_support(edges: Sequence[Edge], strong: Sequence[bool], p: SiteGraphPar
 
     def credit(cycle: Sequence[int]) -> None:
         for k in cycle:
-            if strong[k] or any(strong[k2] for k2 in cycle if k2 != k):
-                support[k] += 1
+            support[k] += 1
 
     for k, e in enumerate(edges):
         z = gtsam.Pose2(*e.z)

@@ -37,20 +37,24 @@ import numpy as np
 from cistern_plugins.alignment import AlignmentQuality, ConvergenceThresholds, verdict
 
 CALIBRATION_FILE = Path(__file__).with_name("verification.json")
-FEATURES = ("inlier_ratio", "violation_ratio", "log_weak_std", "rms_ratio", "log_inliers", "constraint")
+FEATURES = ("inlier_ratio", "violation_ratio", "violation_min", "log_weak_std", "rms_ratio", "log_inliers",
+            "constraint")
 
 
 def features(quality: AlignmentQuality, limits: ConvergenceThresholds) -> np.ndarray:
-    """The model's inputs (:data:`FEATURES`): inlier share, free-space violation share, log10 of the
-    predicted weakest-direction std over the inlier distance, inlier RMS over the inlier distance, log10
-    of the inlier count and the constraint eigenvalue. Non-finite values are clipped to the range the
-    model was fitted on."""
+    """The model's inputs (:data:`FEATURES`): inlier share among the points the other sonar could see,
+    the larger and the smaller of the two free-space violation shares (a sonar blind to a wall inside its
+    blanking range violates one way only; two scans of different places violate both ways), log10 of
+    the predicted weakest-direction std over the inlier distance, inlier RMS over the inlier distance,
+    log10 of the inlier count and the constraint eigenvalue. Non-finite values are clipped to the range
+    the model was fitted on."""
     d = limits.inlier_distance_m
     weak = quality.weak_std_m if math.isfinite(quality.weak_std_m) else 10.0 * d
     rms = quality.rms_m if math.isfinite(quality.rms_m) else d
     return np.array([
         quality.inlier_ratio,
         quality.violation_ratio,
+        quality.violation_min,
         math.log10(min(max(weak / d, 1e-3), 10.0)),
         min(rms / d, 1.0),
         math.log10(max(quality.inliers, 1)),
@@ -127,8 +131,10 @@ def judge(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
 
 
 def weakly_constrained(quality: AlignmentQuality, limits: ConvergenceThresholds) -> bool:
-    """Whether a fit that passes every other test is refused only for its weakest direction, within twice
-    ``max_weak_std_m``: a tentative estimate (see ``MatchResult.tentative``)."""
-    if not limits.calibrated or not limits.max_weak_std_m < quality.weak_std_m <= 2 * limits.max_weak_std_m:
+    """Whether a fit is refused only by the corridor tests, and passes them when both are relaxed by a
+    factor of two (half ``min_constraint``, twice ``max_weak_std_m``): a tentative estimate (see
+    ``MatchResult.tentative``), good across a gallery and weak along it."""
+    if not limits.calibrated or not judge(quality, limits):
         return False
-    return not judge(quality, replace(limits, max_weak_std_m=2 * limits.max_weak_std_m))
+    relaxed = replace(limits, min_constraint=limits.min_constraint / 2, max_weak_std_m=2 * limits.max_weak_std_m)
+    return not judge(quality, relaxed)
