@@ -14,11 +14,25 @@ percentile translation error and median rotation error over converged pairs, med
 false success rate (converged with no overlap, or with an error above 0.5 m). Statistics without data
 (e.g. errors of a matcher that converged on no pair) are ``null`` in the JSON.
 
-External peers (the ``peers`` extra) are run when they import: Open3D's point-to-point ICP (from the
-zero pose; converged when fitness ≥ 0.5 and inlier RMSE ≤ 0.1 m) and OpenKarto's correlative scan
-matcher (``karto-scanmatcher``; 5 m search window, 0.025 m grid, ±25° yaw; converged when its response
-≥ ``KartoCorrelative.MIN_RESPONSE``). Their convergence rules are this script's, as neither library
-reports an honest flag of its own.
+Every rate (success, false success) comes with its 95 % Wilson interval (``*_ci95`` beside it in the
+JSON, in brackets in the table); with 40 pairs per bucket (the default) an interval is about ±15 points.
+
+External peers (the ``peers`` extra) are run when they import, each at its best:
+
+* Open3D's point-to-plane ICP (``open3d-point-to-plane``) from the zero pose, with the built-in
+  ``icp``'s correspondence gate (``max_correspondence_m``) and iteration count (``max_iterations``), the
+  reference's wall normals estimated by Open3D (on the walls extruded ±5 cm vertically, made
+  horizontal), and judged converged by the same verdict as ``icp`` (inliers, inlier share, constraint
+  and free space, :func:`cistern_plugins.alignment.verdict` at its default limits). A virtual floor
+  plane under both clouds fixes the three out-of-plane degrees of freedom of Open3D's 6-DoF solve.
+* OpenKarto's correlative scan matcher (``karto-correlative``, ``karto-scanmatcher``; 5 m search
+  window, 0.025 m grid, ±25° yaw), converged when its response reaches a threshold calibrated on
+  ``--tune-seed``: the lowest that lets through no larger a share of that seed's no-overlap pairs than
+  the worst built-in matcher lets through on the same pairs (:func:`tune_karto`).
+
+Thresholds are tuned on ``--tune-seed`` and every table row is reported on ``--seed`` (they must
+differ). ``--paper`` adds ``pf-pairwise-paper``, pf-pairwise exactly as McVicker et al. describe it
+(:data:`PF_PAPER_PARAMS`; ray casting, so seconds per pair). ``--matchers a,b`` runs only those.
 
 ``--gallery SITE`` instead compares the localizers on a simulated catalog site with truth poses
 (``water-gallery``: the 36 m demo gallery): for each matcher given with ``--gallery-matchers``, the
@@ -33,6 +47,7 @@ which no localizer can remove). ``--localizer-params`` sets localizer parameters
 both errors on the scans both localizers place.
 
     python benchmarks/matchers.py --quick --json
+    python benchmarks/matchers.py --sonar simulator --seed 1 --tune-seed 1000 --json
     python benchmarks/matchers.py --gallery water-gallery --json
     python benchmarks/matchers.py --synthetic-gallery 5 --json
 """
