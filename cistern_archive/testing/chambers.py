@@ -20,20 +20,21 @@ Geometry, in the site's own frame before a random rotation of the whole site:
 Stations (6–12): one in each tunnel (its middle third) or in one of its openings (0.5 m inside a
 chamber, on the tunnel's axis), the others spread over the chambers by area (at least one each), some
 0.45–0.8 m from a wall, the rest farther in, at least 0.8 m apart (less when many share a small
-chamber). They are ordered as an ROV visits
-them (through each chamber from its westernmost station always on to the nearest, the tunnel's station
-between two chambers) and each heads
-towards the next with 20° of jitter. Echoes are Micron-like (the simulator's speckle, multipath ghosts,
-spikes, ring-down and vehicle echo, on by default); the compass has a bias of up to ±2° and 2° of noise.
+chamber). They are ordered as an ROV visits them: through each chamber from its westernmost station
+always on to the nearest, the tunnel's station between two chambers; each heads towards the next with
+20° of jitter. Echoes are Micron-like (the simulator's speckle, multipath ghosts, spikes, ring-down and
+vehicle echo, on by default; walls of roughness 0.03–0.3; range 6, 8 or 10 m in 4 cm bins, 0.9°
+steps); the compass has a bias of up to ±2° and 2° of noise. The records carry the true poses
+(``truth``), as the demo specs' records do.
 
->>> spec = random_cistern(np.random.default_rng(1), index=0)   # doctest: +SKIP
->>> site = simulate_site(spec)                                 # doctest: +SKIP
+>>> cistern = random_cistern(np.random.default_rng(1), index=0)   # doctest: +SKIP
+>>> site = simulate_site(cistern.spec)                            # doctest: +SKIP
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -180,7 +181,7 @@ def random_layout(rng: np.random.Generator, n_chambers: int) -> Layout:
         tunnels.append(Tunnel(west.x1, east.x0, y, width))
         chambers.append(east)
     layout = Layout(chambers, tunnels, float(rng.uniform(0.0, 2.0 * math.pi)))
-    return Layout(chambers, tunnels, layout.rotation_rad, layout.to_map(outline(chambers, tunnels)))
+    return replace(layout, outline=layout.to_map(outline(chambers, tunnels)))
 
 
 def outline(chambers: list[Chamber], tunnels: list[Tunnel]) -> np.ndarray:
