@@ -1,9 +1,12 @@
 """The simulated LAIR pool (McVicker et al., Sec. IV) over many seeds, beside the paper's numbers.
 
 Each seed re-simulates the four scans of ``catalog/specs/lair-pool.yaml`` (a Micron-like head with
-speckle, multipath, spikes, the vehicle's own echo and a biased, noisy compass), segments them with the
-site's segmentation, and runs the four stage plugins directly: localizer pairs → matcher → localizer →
-mapper → comparator with the site record's references (10 probes each).
+speckle, multipath, spikes, the vehicle's own echo and a biased, noisy compass) into a temporary catalog
+(the simulator's writer, as ``cistern-archive simulate`` does) and builds that site record with the
+pipeline runner (:func:`cistern_archive.pipeline.runner.build_site`, no rendering): segmentation,
+the localizer's pairs (both rounds), matcher, localizer, mapper and comparator with the record's
+references (10 probes each). ``--STAGE-param`` overrides a stage's parameters in the record.
+The site time is the runner's, without configuring and loading the scans.
 
 Usage::
 
@@ -20,7 +23,8 @@ import argparse
 import json
 import statistics
 import sys
-import time
+import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.catalog.loader import load_record  # noqa: E402
 from cistern_archive.evaluation import in_compass_frame  # noqa: E402
-from cistern_archive.pipeline.registry import default_registry  # noqa: E402
-from cistern_archive.sonar.segmentation import segment  # noqa: E402
+from cistern_archive.pipeline.runner import build_site  # noqa: E402
+from cistern_archive.sonar.simulation_output import write_site  # noqa: E402
 from cistern_archive.sonar.simulator import simulate_site  # noqa: E402
 from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
 
@@ -76,21 +80,27 @@ def expected_displacement(sim, i: int, j: int) -> np.ndarray:
     return in_compass_frame(d, a.scan.yaw_rad - a.pose.yaw_rad)
 
 
-def run_seed(seed: int, spec, record, stages, params) -> dict:
+def seed_record(seed: int, spec, root: Path, overrides: dict[str, dict]):
+    """The pool simulated with ``seed`` as a site record in the catalog ``root``, with the stage
+    parameter ``overrides``; returns the loaded record and the simulation (for its truth)."""
     sim = simulate_site(spec.model_copy(update={"seed": seed}))
-    matcher, localizer, mapper, comparator = stages
-    t0 = time.perf_counter()
-    scans = [segment(s.scan, spec.segmentation) for s in sim.scans]
-    pairs = localizer.pairs(len(scans), params["localizer"])
-    matches = []
-    for i, j in pairs:
-        rng = np.random.default_rng([seed, i, j])
-        m = matcher.match(scans[i], scans[j], params["matcher"], rng=rng)
-        matches.append(type(m)(**{**m.__dict__, "i": i, "j": j}))
-    poses = localizer.localize(scans, matches, params["localizer"])
-    grid = mapper.build(scans, poses, params["mapper"])
-    table = comparator.compare(grid, poses, record.references, record.station_index(), params["comparator"])
-    site_seconds = time.perf_counter() - t0
+    loaded = load_record(write_site(sim, root, record_dir="sites"), root)
+    pipeline = loaded.record.pipeline
+    stages = {stage: getattr(pipeline, stage).model_copy(
+        update={"params": {**getattr(pipeline, stage).params, **overrides[stage]}}) for stage in overrides}
+    record = loaded.record.model_copy(update={"pipeline": pipeline.model_copy(update=stages)})
+    return replace(loaded, record=record), sim
+
+
+def run_seed(seed: int, spec, overrides: dict[str, dict], root: Path) -> dict:
+    """Build one seed's pool with the pipeline runner (:func:`build_site`) and score it."""
+    loaded, sim = seed_record(seed, spec, root / f"seed-{seed}", overrides)
+    build = build_site(loaded)
+    if build.result.status != "ok":
+        raise SystemExit(f"seed {seed}: the build failed: {build.result.error}")
+    timings = build.result.timings_s
+    site_seconds = sum(v for k, v in timings.items() if k not in ("total", "configure", "load"))
+    table, matches = build.table, build.matches
     rows = {(r.name, r.reference_kind): r for r in table.rows}
     ok = []
     for m in matches:
@@ -109,8 +119,9 @@ def run_seed(seed: int, spec, record, stages, params) -> dict:
         "mosaic_length_diff_m": rows[("length", "mosaic")].diff_m,
         "pair_ok": ok,
         "pair_seconds": [m.seconds for m in matches],
-        "placed": int(poses.placed.sum()),
+        "placed": int(build.poses.placed.sum()),
         "site_seconds": site_seconds,
+        "params": {p.stage: p.params for p in build.result.provenance.plugins},
     }
 
 
@@ -173,19 +184,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     spec = load_spec(ROOT / "catalog" / "specs" / "lair-pool.yaml")
-    record = load_record(ROOT / "catalog" / "sites" / "lair-pool.yaml", ROOT / "catalog").record
-    registry = default_registry()
-    stages, params = [], {}
-    for stage in ("matcher", "localizer", "mapper", "comparator"):
-        choice = getattr(record.pipeline, stage)
-        loaded = registry.load(stage, choice.plugin)
-        stages.append(loaded.instance)
-        overrides = parse_overrides(getattr(args, f"{stage}_param"))
-        params[stage] = loaded.validate_params({**choice.params, **overrides})
-    runs = [run_seed(seed, spec, record, stages, params)
-            for seed in range(args.first_seed, args.first_seed + args.seeds)]
+    overrides = {stage: parse_overrides(getattr(args, f"{stage}_param"))
+                 for stage in ("matcher", "localizer", "mapper", "comparator")}
+    with tempfile.TemporaryDirectory(prefix="pool-") as tmp:
+        runs = [run_seed(seed, spec, overrides, Path(tmp))
+                for seed in range(args.first_seed, args.first_seed + args.seeds)]
     summary = summarise(runs)
-    summary["params"] = {k: v.model_dump() for k, v in params.items()}
+    summary["params"] = runs[0]["params"]
     print_table(summary)
     if args.json:
         print(json.dumps(summary, sort_keys=True))

@@ -104,16 +104,36 @@ def reference_frame_errors(poses: Poses, true_xy_m: np.ndarray, compass_error_ra
     return errors
 
 
-def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """95 % (by default) Wilson score interval of a rate ``successes / n``; ``(nan, nan)`` when ``n == 0``.
+WILSON_Z95 = 1.959963984540054
 
-    Unlike the normal approximation it stays inside [0, 1] and is informative at rates of 0 or 1
-    (Wilson 1927; Brown, Cai and DasGupta 2001 recommend it for small ``n``).
+
+def wilson_interval(successes: int, trials: int, z: float = WILSON_Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial rate ``successes / trials`` (95 % for the default ``z``).
+
+    Wilson (1927): the bounds ``(p + z²/2n ± z sqrt(p(1-p)/n + z²/4n²)) / (1 + z²/n)``; unlike the normal
+    approximation it stays inside [0, 1] and is not empty at 0 or ``trials`` successes. ``(nan, nan)``
+    when there are no trials.
     """
-    if n <= 0:
-        return (float("nan"), float("nan"))
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    if trials <= 0:
+        return float("nan"), float("nan")
+    if not 0 <= successes <= trials:
+        raise ValueError(f"successes must be within 0..{trials}, got {successes}")
+    p = successes / trials
+    z2 = z * z
+    centre = p + z2 / (2 * trials)
+    half = z * math.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials))
+    scale = 1 + z2 / trials
+    low = 0.0 if successes == 0 else max(0.0, (centre - half) / scale)
+    high = 1.0 if successes == trials else min(1.0, (centre + half) / scale)
+    return low, high
+
+
+def strict_json(value):
+    """The same structure with NaN and infinities as ``None`` (JSON ``null``), tuples as lists."""
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -19,7 +19,7 @@ from cistern_archive.sonar.simulator import simulate_site
 from cistern_archive.sonar.simulator_spec import load_spec
 
 CATALOG = Path(__file__).resolve().parents[1] / "catalog"
-SITES = ["bell-cistern", "gatto-pardo", "lair-pool", "mdina-site-8", "water-gallery"]
+SITES = ["bell-cistern", "gatto-pardo", "lair-pool", "mdina-site-8", "three-chambers", "water-gallery"]
 
 
 def record(site: str):
@@ -104,6 +104,25 @@ def test_mdina_end_scans_barely_overlap():
     assert overlap_fraction(pos["a3"], pos["b1"], rings, 10.0) < 0.3
     assert ("a3", "o1") in overlaps and ("o1", "b1") in overlaps  # the station in the opening joins them
     assert all(v >= 0.7 for v in overlaps.values())
+
+
+def test_three_chambers_are_joined_by_tunnels_with_a_station_in_each_passage():
+    spec = load_spec(CATALOG / "specs" / "three-chambers.yaml")
+    rings = [np.asarray(r) for r in truth("three-chambers")["levels"][0]["rings"]]
+    assert len(rings) == 1  # one closed outline
+    pos = {s["station"]: np.array([s["x_m"], s["y_m"]]) for s in truth("three-chambers")["stations"]}
+    names = [s.name for s in spec.stations]
+    assert [n[0] for n in names] == list("aaatbbboccc")  # visiting order: A, tunnel, B, opening, C
+    from cistern_archive.sonar.geometry import ray_cast
+
+    for station, (x0, x1) in (("t1", (5.0, 6.5)), ("o2", (11.0, 12.2))):  # each tunnel, wall to wall
+        across, _ = ray_cast(np.array([0.5 * (x0 + x1), pos[station][1]]), np.array([np.pi / 2, -np.pi / 2]), rings)
+        assert 0.8 <= across.sum() <= 1.2
+    assert spec.stations[3].x_m > 5.0 and spec.stations[3].x_m < 6.5  # t1 inside the first tunnel
+    overlaps = [overlap_fraction(pos[a], pos[b], rings, 8.0) for a, b in zip(names, names[1:])]
+    assert min(overlaps) >= 0.6  # every scan overlaps the next one well
+    assert overlap_fraction(pos["a1"], pos["c3"], rings, 8.0) == 0.0
+    assert overlap_fraction(pos["b3"], pos["c1"], rings, 8.0) < 0.5  # either side of tunnel 2
 
 
 def test_bell_is_scanned_at_three_depths_with_changing_walls():

@@ -5,6 +5,9 @@ conformance check.
 >>> report = check_matcher(MyMatcher(), n_pairs=20, seed=0)   # doctest: +SKIP
 >>> assert report.passed
 
+Random multi-chamber cisterns for the physical sonar simulator, with truth poses, are in
+:mod:`cistern_archive.testing.chambers` (used by ``benchmarks/sites.py --random``).
+
 The pytest plugin :mod:`cistern_archive.testing.pytest_plugin` (registered through ``pytest11``) gives
 tests the ``simulated_pair``, ``simulated_pairs`` and ``isolated_registry`` fixtures.
 """

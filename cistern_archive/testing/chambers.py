@@ -1,0 +1,410 @@
+"""Random multi-chamber cisterns for the physical sonar simulator, with known truth.
+
+A site is one to three chambers in a row, each joined to the next by a straight tunnel, under one
+closed wall outline, scanned by an ROV that visits its stations in order (one chamber after another,
+through each tunnel). Everything is drawn from one seeded generator, so a seed gives the same spec.
+
+Geometry, in the site's own frame before a random rotation of the whole site:
+
+* **Chambers**: ``x`` extent and ``y`` extent each 2.5–8 m. A chamber is a ``"polygon"`` (a box whose
+  floor and ceiling walls are jittered polylines, with some corners cut off) or a ``"round"`` chamber
+  (its floor and ceiling walls follow an ellipse that meets straight end walls). Its end walls
+  (``x = x0`` and ``x = x1``) are straight, so that a tunnel can meet them square.
+* **Tunnels**: 0.8–1.2 m wide and 1–2.5 m long, from the east end wall of one chamber to the west end
+  wall of the next, at a height that both end walls hold with 0.25 m of wall either side.
+* **The outline** walks every chamber's floor wall west to east, the last chamber's east wall, every
+  ceiling wall east to west and the first chamber's west wall, stepping through each tunnel both ways.
+  Chambers and tunnels occupy disjoint ``x`` intervals and each wall is ``x``-monotone, so the outline
+  is a simple counter-clockwise polygon.
+
+Stations (6–12): one in each tunnel (its middle third) or in one of its openings (0.5 m inside a
+chamber, on the tunnel's axis), the others spread over the chambers by area (at least one each), some
+0.45–0.8 m from a wall, the rest farther in, at least 0.8 m apart (less when many share a small
+chamber). They are ordered as an ROV visits them: through each chamber from its westernmost station
+always on to the nearest, the tunnel's station between two chambers; each heads towards the next with
+20° of jitter. Echoes are Micron-like (the simulator's speckle, multipath ghosts, spikes, ring-down and
+vehicle echo, on by default; walls of roughness 0.03–0.3; range 6, 8 or 10 m in 4 cm bins, 0.9°
+steps); the compass has a bias of up to ±2° and 2° of noise. The records carry the true poses
+(``truth``), as the demo specs' records do.
+
+>>> cistern = random_cistern(np.random.default_rng(1), index=0)   # doctest: +SKIP
+>>> site = simulate_site(cistern.spec)                            # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from cistern_archive.sonar.geometry import contains, edges_of
+from cistern_archive.sonar.simulator_spec import SimulationSpec
+
+ROOM_M = (2.5, 8.0)
+TUNNEL_WIDTH_M = (0.8, 1.2)
+TUNNEL_LENGTH_M = (1.0, 2.5)
+STATIONS = (6, 12)
+WALL_MARGIN_M = 0.25
+NEAR_WALL_M = (0.45, 0.8)
+MIN_SPACING_M = 0.8
+OPENING_INSET_M = 0.5
+COMPASS_BIAS_DEG = 2.0
+COMPASS_SIGMA_DEG = 2.0
+YAW_JITTER_DEG = 20.0
+
+
+@dataclass(frozen=True)
+class Chamber:
+    """One chamber in the site's own frame: its floor (south) and ceiling (north) walls, west to east.
+
+    ``floor[0]`` and ``ceiling[0]`` are the ends of the west wall (``x = x0``), ``floor[-1]`` and
+    ``ceiling[-1]`` those of the east wall (``x = x1``).
+    """
+
+    kind: str
+    floor: np.ndarray
+    ceiling: np.ndarray
+
+    @property
+    def x0(self) -> float:
+        return float(self.floor[0, 0])
+
+    @property
+    def x1(self) -> float:
+        return float(self.floor[-1, 0])
+
+    def ring(self) -> np.ndarray:
+        """The chamber alone as a closed counter-clockwise ring."""
+        return np.vstack([self.floor, self.ceiling[::-1]])
+
+    def extent_m(self) -> tuple[float, float]:
+        """Bounding-box size (x, y) of the chamber."""
+        ring = self.ring()
+        return float(np.ptp(ring[:, 0])), float(np.ptp(ring[:, 1]))
+
+    def span(self, end: int) -> tuple[float, float]:
+        """Straight part of the west (``end=0``) or east (``end=-1``) wall: (y_low, y_high)."""
+        return float(self.floor[end, 1]), float(self.ceiling[end, 1])
+
+    def shifted(self, dx: float, dy: float) -> "Chamber":
+        return Chamber(self.kind, self.floor + [dx, dy], self.ceiling + [dx, dy])
+
+
+@dataclass(frozen=True)
+class Tunnel:
+    """A straight tunnel along x from ``x0`` to ``x1``, centred on ``y``, ``width_m`` wide."""
+
+    x0: float
+    x1: float
+    y: float
+    width_m: float
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Chambers and tunnels of a site in its own frame, and the rotation placing it in the map frame."""
+
+    chambers: list[Chamber]
+    tunnels: list[Tunnel]
+    rotation_rad: float = 0.0
+    outline: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    def to_map(self, points: np.ndarray) -> np.ndarray:
+        """Points (N, 2) of the site's frame in the map frame (rotated about the origin)."""
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        return np.asarray(points, dtype=np.float64) @ np.array([[c, s], [-s, c]])
+
+
+def _jittered_chain(rng: np.random.Generator, length: float, y: float, amplitude: float) -> np.ndarray:
+    """Interior vertices of a floor or ceiling wall: 1–3 points between the end walls, jittered in y."""
+    n = int(rng.integers(1, 4))
+    xs = np.sort(rng.uniform(0.15 * length, 0.85 * length, n))
+    return np.column_stack([xs, y + rng.uniform(-amplitude, amplitude, n)])
+
+
+def polygon_chamber(rng: np.random.Generator, length: float, height: float) -> Chamber:
+    """A box ``length`` x ``height`` with jittered floor and ceiling walls and some corners cut off."""
+    amplitude = min(0.25, 0.06 * height)
+    cut = [float(rng.uniform(0.3, min(0.8, 0.15 * height))) if rng.random() < 0.5 else 0.0 for _ in range(4)]
+    floor = [[0.0, cut[0]]] + ([[cut[0], 0.0]] if cut[0] else [])
+    floor += _jittered_chain(rng, length, 0.0, amplitude).tolist()
+    floor += ([[length - cut[1], 0.0]] if cut[1] else []) + [[length, cut[1]]]
+    ceiling = [[0.0, height - cut[2]]] + ([[cut[2], height]] if cut[2] else [])
+    ceiling += _jittered_chain(rng, length, height, amplitude).tolist()
+    ceiling += ([[length - cut[3], height]] if cut[3] else []) + [[length, height - cut[3]]]
+    return Chamber("polygon", np.array(floor), np.array(ceiling))
+
+
+def round_chamber(rng: np.random.Generator, length: float, height: float) -> Chamber:
+    """A chamber whose floor and ceiling walls follow an ellipse meeting straight end walls of half height
+    ``s`` (at least 0.9 m, so that a tunnel fits)."""
+    half = height / 2.0
+    s = min(half, max(0.9, float(rng.uniform(0.45, 0.7)) * half))
+    u = np.linspace(-1.0, 1.0, 9)
+    dy = half * np.sqrt(1.0 - (1.0 - (s / half) ** 2) * u**2)
+    xs = (u + 1.0) * length / 2.0
+    return Chamber("round", np.column_stack([xs, half - dy]), np.column_stack([xs, half + dy]))
+
+
+def random_chamber(rng: np.random.Generator) -> Chamber:
+    """A chamber of either kind whose bounding box is 2.5–8 m each way (redrawn until it is)."""
+    while True:
+        length, height = rng.uniform(3.0, 7.5, 2)
+        make = polygon_chamber if rng.random() < 0.6 else round_chamber
+        chamber = make(rng, float(length), float(height))
+        if all(ROOM_M[0] <= e <= ROOM_M[1] for e in chamber.extent_m()):
+            return chamber
+
+
+def _tunnel_height(rng: np.random.Generator, span: tuple[float, float], width: float) -> float:
+    lo, hi = span[0] + WALL_MARGIN_M + width / 2, span[1] - WALL_MARGIN_M - width / 2
+    if hi < lo:
+        raise ValueError(f"an end wall of {span[1] - span[0]:.2f} m cannot hold a {width:.2f} m tunnel")
+    return float(rng.uniform(lo, hi))
+
+
+def random_layout(rng: np.random.Generator, n_chambers: int) -> Layout:
+    """``n_chambers`` chambers in a row joined by tunnels (module docstring), rotated at random."""
+    chambers = [random_chamber(rng)]
+    tunnels = []
+    for _ in range(n_chambers - 1):
+        width = float(rng.uniform(*TUNNEL_WIDTH_M))
+        length = float(rng.uniform(*TUNNEL_LENGTH_M))
+        west = chambers[-1]
+        y = _tunnel_height(rng, west.span(-1), width)
+        east = random_chamber(rng)
+        y_in_east = _tunnel_height(rng, east.span(0), width)
+        east = east.shifted(west.x1 + length, y - y_in_east)
+        tunnels.append(Tunnel(west.x1, east.x0, y, width))
+        chambers.append(east)
+    layout = Layout(chambers, tunnels, float(rng.uniform(0.0, 2.0 * math.pi)))
+    return replace(layout, outline=layout.to_map(outline(chambers, tunnels)))
+
+
+def outline(chambers: list[Chamber], tunnels: list[Tunnel]) -> np.ndarray:
+    """The closed counter-clockwise wall outline of chambers joined by tunnels (site frame)."""
+    points: list[np.ndarray] = []
+    for k, chamber in enumerate(chambers):
+        points += list(chamber.floor)
+        if k < len(tunnels):
+            t = tunnels[k]
+            points += [np.array([t.x0, t.y - t.width_m / 2]), np.array([t.x1, t.y - t.width_m / 2])]
+    for k in range(len(chambers) - 1, -1, -1):
+        points += list(chambers[k].ceiling[::-1])
+        if k > 0:
+            t = tunnels[k - 1]
+            points += [np.array([t.x1, t.y + t.width_m / 2]), np.array([t.x0, t.y + t.width_m / 2])]
+    ring = np.array(points, dtype=np.float64)
+    keep = np.hypot(*(ring - np.roll(ring, 1, axis=0)).T) > 1e-9
+    return ring[keep]
+
+
+def wall_distance(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """Distance from each point (N, 2) to the nearest edge of ``ring``."""
+    a, b = edges_of([ring])
+    e = b - a
+    p = np.asarray(points, dtype=np.float64)[:, None, :]
+    t = np.clip(((p - a) * e).sum(-1) / np.maximum((e * e).sum(-1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[..., None] * e), axis=-1).min(axis=1)
+
+
+@dataclass(frozen=True)
+class Station:
+    """A planned station in the site's frame: label, position and where it is."""
+
+    name: str
+    xy: np.ndarray
+    place: str  # "chamber", "near-wall", "tunnel" or "opening"
+
+
+def _chamber_stations(rng: np.random.Generator, chamber: Chamber, site_ring: np.ndarray, n: int,
+                      prefix: str, taken: list[np.ndarray]) -> list[Station]:
+    """``n`` stations inside ``chamber``, some near a wall, apart by MIN_SPACING_M (less when many
+    stations share a small chamber: half the side of the area each would have)."""
+    ring = chamber.ring()
+    spacing = min(MIN_SPACING_M, 0.5 * math.sqrt(abs(_area(ring)) / n))
+    lo, hi = ring.min(axis=0), ring.max(axis=0)
+    found: list[tuple[np.ndarray, str]] = []
+    for _ in range(4000):
+        if len(found) == n:
+            break
+        near = rng.random() < 0.4
+        p = rng.uniform(lo, hi)
+        clearance = float(wall_distance(p[None], site_ring)[0])
+        wanted = NEAR_WALL_M[0] <= clearance <= NEAR_WALL_M[1] if near else clearance > NEAR_WALL_M[1]
+        if not wanted or not contains([ring], p[None])[0]:
+            continue
+        if any(np.hypot(*(p - q)) < spacing for q in taken + [f for f, _ in found]):
+            continue
+        found.append((p, "near-wall" if near else "chamber"))
+    if len(found) < n:
+        raise ValueError(f"could not place {n} stations in a {chamber.extent_m()} m chamber")
+    order = visiting_order(np.array([p for p, _ in found]))
+    return [Station(f"{prefix}{k + 1}", found[i][0], found[i][1]) for k, i in enumerate(order)]
+
+
+def visiting_order(points: np.ndarray) -> list[int]:
+    """The order an ROV crossing a chamber west to east visits ``points`` (N, 2, site frame): from the
+    westernmost, always on to the nearest not yet visited."""
+    left = list(range(len(points)))
+    order = [min(left, key=lambda k: points[k, 0])]
+    left.remove(order[0])
+    while left:
+        nearest = min(left, key=lambda k: float(np.hypot(*(points[k] - points[order[-1]]))))
+        order.append(nearest)
+        left.remove(nearest)
+    return order
+
+
+def _connector(rng: np.random.Generator, tunnel: Tunnel, index: int) -> Station:
+    """The station joining two chambers: in the tunnel's middle third, or in one of its openings."""
+    choice = rng.random()
+    if choice < 0.5:
+        x = tunnel.x0 + (tunnel.x1 - tunnel.x0) * float(rng.uniform(1 / 3, 2 / 3))
+        return Station(f"t{index + 1}", np.array([x, tunnel.y]), "tunnel")
+    x = tunnel.x0 - OPENING_INSET_M if choice < 0.75 else tunnel.x1 + OPENING_INSET_M
+    return Station(f"o{index + 1}", np.array([x, tunnel.y]), "opening")
+
+
+def station_counts(rng: np.random.Generator, chambers: list[Chamber], n_stations: int) -> list[int]:
+    """Stations per chamber: one each, the rest drawn in proportion to the chambers' areas."""
+    spare = n_stations - (len(chambers) - 1) - len(chambers)
+    if spare < 0:
+        raise ValueError(f"{n_stations} stations cannot cover {len(chambers)} chambers and their tunnels")
+    areas = np.array([abs(_area(c.ring())) for c in chambers])
+    return (1 + rng.multinomial(spare, areas / areas.sum())).tolist()
+
+
+def _area(ring: np.ndarray) -> float:
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int) -> list[Station]:
+    """Stations in visiting order (module docstring), in the site's frame."""
+    site_ring = outline(layout.chambers, layout.tunnels)
+    counts = station_counts(rng, layout.chambers, n_stations)
+    connectors = [_connector(rng, tunnel, k) for k, tunnel in enumerate(layout.tunnels)]
+    stations: list[Station] = []
+    for k, (chamber, n) in enumerate(zip(layout.chambers, counts)):
+        if k > 0:
+            stations.append(connectors[k - 1])
+        taken = [s.xy for s in stations + connectors[k:]]
+        stations += _chamber_stations(rng, chamber, site_ring, n, "abc"[k], taken)
+    return stations
+
+
+def headings(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Map-frame yaw (rad) of each station: towards the next one, with YAW_JITTER_DEG of jitter."""
+    step = np.diff(points, axis=0)
+    towards = np.arctan2(step[:, 1], step[:, 0])
+    towards = np.append(towards, towards[-1])
+    return towards + math.radians(YAW_JITTER_DEG) * rng.standard_normal(len(points))
+
+
+def _round(value: float, digits: int = 3) -> float:
+    return float(round(float(value), digits))
+
+
+@dataclass(frozen=True)
+class GeneratedCistern:
+    """A random cistern: its validated simulator spec, its layout and its stations (spec order)."""
+
+    spec: SimulationSpec
+    layout: Layout
+    stations: list[Station]
+
+    @property
+    def chambers(self) -> int:
+        return len(self.layout.chambers)
+
+
+def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | None = None,
+                   stations: int | None = None) -> GeneratedCistern:
+    """A random multi-chamber cistern (module docstring).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The only source of randomness: equal generator states give equal specs.
+    index : int
+        Names the site (``cistern-<index>``).
+    chambers, stations : int, optional
+        Fix the number of chambers (1–3) or stations (6–12) instead of drawing them.
+    """
+    n_chambers = int(chambers if chambers is not None else rng.integers(1, 4))
+    n_stations = int(stations if stations is not None else rng.integers(STATIONS[0], STATIONS[1] + 1))
+    if not 1 <= n_chambers <= 3 or not STATIONS[0] <= n_stations <= STATIONS[1]:
+        raise ValueError(f"chambers must be 1-3 and stations {STATIONS[0]}-{STATIONS[1]}, "
+                         f"got {n_chambers} and {n_stations}")
+    layout = random_layout(rng, n_chambers)
+    planned = plan_stations(rng, layout, n_stations)
+    xy = layout.to_map(np.array([s.xy for s in planned]))
+    yaws = headings(xy, rng)
+    depth = float(rng.uniform(1.0, 1.6))
+    range_m = float(rng.choice([6.0, 8.0, 10.0]))
+    first = layout.chambers[0]
+    centre = layout.to_map(np.array([[0.5 * (first.x0 + first.x1), 0.5 * (first.span(0)[0] + first.span(0)[1])]]))
+    spec = {
+        "id": f"cistern-{index:03d}",
+        "name": f"Random {n_chambers}-chamber cistern {index:03d}",
+        "description": (f"{n_chambers} chamber(s) "
+                        f"({', '.join('%.1f x %.1f m' % c.extent_m() for c in layout.chambers)}) joined by "
+                        f"tunnels {', '.join('%.2f' % t.width_m for t in layout.tunnels) or '(none)'} m wide; "
+                        f"{n_stations} stations ({', '.join(s.place for s in planned)})."),
+        "location": {"place": "simulated", "redact": True},
+        "seed": int(rng.integers(0, 2**31)),
+        "site": {"water_depth_m": _round(depth + rng.uniform(0.8, 1.5), 2),
+                 "levels": [{"depth_m": 0.0, "walls": {"polygon": [[_round(x), _round(y)] for x, y in layout.outline]},
+                             "wall_roughness": _round(rng.uniform(0.03, 0.3))}]},
+        "sonar": {"range_m": range_m, "bins": int(round(range_m / 0.04)), "step_deg": 0.9},
+        "effects": {"compass_bias_deg": _round(rng.uniform(-COMPASS_BIAS_DEG, COMPASS_BIAS_DEG), 2),
+                    "compass_sigma_deg": COMPASS_SIGMA_DEG,
+                    "multipath_fraction": _round(rng.uniform(0.04, 0.10))},
+        "segmentation": {"min_range_m": 0.4},
+        "stations": [
+            {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
+             "depth_m": _round(depth + rng.uniform(-0.05, 0.05))}
+            for s, p, yaw in zip(planned, xy, yaws)
+        ],
+        "references": [{
+            "name": "width", "kind": "truth",
+            "measure": {"frame": planned[0].name, "inside": [_round(centre[0, 0]), _round(centre[0, 1])],
+                        "direction_deg": _round(math.degrees(layout.rotation_rad) + 90.0, 2),
+                        "repeats": 5, "spacing_m": 0.2},
+        }],
+    }
+    return GeneratedCistern(SimulationSpec.model_validate(spec), layout, planned)
+
+
+def random_cisterns(n: int, seed: int) -> list[GeneratedCistern]:
+    """``n`` random cisterns from one seed (``cistern-000`` …)."""
+    rng = np.random.default_rng(seed)
+    return [random_cistern(rng, k) for k in range(n)]
+
+
+def write_specs(cisterns: list[GeneratedCistern], root: Path) -> list[Path]:
+    """Write each cistern's spec to ``root/specs/<id>.yaml`` (a catalog root for
+    :func:`simulate_into`); return the spec paths."""
+    paths = []
+    for cistern in cisterns:
+        path = Path(root) / "specs" / f"{cistern.spec.id}.yaml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        body = yaml.safe_dump(cistern.spec.model_dump(mode="json", exclude_none=True), sort_keys=False, width=100)
+        path.write_text(f"# A random {cistern.chambers}-chamber cistern of cistern_archive.testing.chambers.\n"
+                        + body, encoding="utf-8")
+        paths.append(path)
+    return paths
+
+
+def simulate_into(spec_path: Path, root: Path) -> Path:
+    """Simulate the spec at ``spec_path`` into the catalog ``root`` (scans, truth, ``sites/<id>.yaml``),
+    as ``cistern-archive simulate SPEC --out ROOT --record-dir sites`` does; return the record's path."""
+    from cistern_archive.sonar.simulation_output import write_site
+    from cistern_archive.sonar.simulator import simulate_site
+    from cistern_archive.sonar.simulator_spec import load_spec
+
+    return write_site(simulate_site(load_spec(spec_path)), Path(root), spec_path=spec_path, record_dir="sites")

@@ -1,0 +1,179 @@
+"""The random multi-chamber cisterns (cistern_archive.testing.chambers) and the Wilson interval."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cistern_archive.evaluation import wilson_interval
+from cistern_archive.sonar.geometry import contains, ray_cast
+from cistern_archive.sonar.simulator import station_poses
+from cistern_archive.sonar.simulator_spec import SimulationSpec, load_spec
+from cistern_archive.testing.chambers import (
+    ROOM_M,
+    STATIONS,
+    TUNNEL_WIDTH_M,
+    random_cistern,
+    random_cisterns,
+    simulate_into,
+    wall_distance,
+    write_specs,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+CISTERNS = random_cisterns(30, seed=7)
+
+
+def _segments_cross(p1, p2, q1, q2) -> bool:
+    def side(a, b, c):
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+    return side(p1, p2, q1) * side(p1, p2, q2) < 0 and side(q1, q2, p1) * side(q1, q2, p2) < 0
+
+
+def test_equal_seeds_give_equal_specs_and_other_seeds_other_sites():
+    again = random_cisterns(30, seed=7)
+    assert [c.spec for c in again] == [c.spec for c in CISTERNS]
+    other = random_cisterns(30, seed=8)
+    assert [c.spec.site for c in other] != [c.spec.site for c in CISTERNS]
+
+
+def test_specs_are_valid_and_round_trip_through_yaml(tmp_path: Path):
+    paths = write_specs(CISTERNS[:5], tmp_path)
+    for cistern, path in zip(CISTERNS[:5], paths):
+        assert load_spec(path) == cistern.spec
+        SimulationSpec.model_validate(cistern.spec.model_dump())
+        assert len(station_poses(cistern.spec)) == len(cistern.spec.stations)  # every station is in the water
+
+
+def test_one_to_three_chambers_of_2_5_to_8_m_not_only_rectangles():
+    counts = {c.chambers for c in CISTERNS}
+    assert counts == {1, 2, 3}
+    kinds = set()
+    for cistern in CISTERNS:
+        for chamber in cistern.layout.chambers:
+            kinds.add(chamber.kind)
+            assert all(ROOM_M[0] <= e <= ROOM_M[1] for e in chamber.extent_m())
+    assert kinds == {"polygon", "round"}
+    assert any(len(c.ring()) > 4 for cistern in CISTERNS for c in cistern.layout.chambers)
+
+
+def test_one_closed_simple_counter_clockwise_outline():
+    for cistern in CISTERNS:
+        level = cistern.spec.site.levels
+        assert len(level) == 1 and not level[0].islands
+        ring = np.asarray(level[0].walls.polygon)
+        x, y = ring[:, 0], ring[:, 1]
+        assert 0.5 * (np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) > 0
+        edges = list(zip(ring, np.roll(ring, -1, axis=0)))
+        for (a, b), (c, d) in combinations(edges, 2):
+            assert not _segments_cross(a, b, c, d), cistern.spec.id
+
+
+def test_tunnels_are_0_8_to_1_2_m_wide_wall_to_wall():
+    tunnels = 0
+    for cistern in CISTERNS:
+        assert len(cistern.layout.tunnels) == cistern.chambers - 1
+        ring = [np.asarray(cistern.spec.site.levels[0].walls.polygon)]
+        for t in cistern.layout.tunnels:
+            assert TUNNEL_WIDTH_M[0] <= t.width_m <= TUNNEL_WIDTH_M[1]
+            assert 1.0 <= t.x1 - t.x0 <= 2.5
+            middle = cistern.layout.to_map(np.array([[0.5 * (t.x0 + t.x1), t.y]]))[0]
+            across = cistern.layout.rotation_rad + math.pi / 2
+            ranges, _ = ray_cast(middle, np.array([across, across + math.pi]), ring)
+            assert ranges.sum() == pytest.approx(t.width_m, abs=2e-3)  # measured on the written walls
+            tunnels += 1
+    assert tunnels >= 15
+
+
+def test_six_to_twelve_stations_in_visiting_order_some_in_tunnels_or_openings_some_near_walls():
+    places = set()
+    for cistern in CISTERNS:
+        spec = cistern.spec
+        assert STATIONS[0] <= len(spec.stations) <= STATIONS[1]
+        ring = np.asarray(spec.site.levels[0].walls.polygon)
+        xy = np.array([[s.x_m, s.y_m] for s in spec.stations])
+        assert contains([ring], xy).all()
+        assert (wall_distance(xy, ring) >= 0.39).all()
+        names = [s.name for s in spec.stations]
+        prefixes = [n[0] for n in names]
+        chamber_order = [p for p in prefixes if p in "abc"]
+        assert chamber_order == sorted(chamber_order)  # one chamber after another
+        connectors = [k for k, p in enumerate(prefixes) if p in "to"]
+        assert len(connectors) == cistern.chambers - 1
+        for k in connectors:  # each tunnel's station lies between the chambers it joins
+            assert prefixes[k - 1] < prefixes[k + 1]
+        places |= {s.place for s in cistern.stations}
+        assert [s.name for s in cistern.stations] == names
+    assert places == {"chamber", "near-wall", "tunnel", "opening"}
+
+
+def test_micron_like_echoes_and_two_degree_compass():
+    for cistern in CISTERNS:
+        e = cistern.spec.effects
+        assert e.speckle_looks > 0 and e.multipath_fraction > 0 and e.spike_rate > 0 and e.self_echo_db > -100
+        assert abs(e.compass_bias_deg) <= 2.0 and e.compass_sigma_deg == pytest.approx(2.0)
+
+
+def test_fixed_counts_and_bad_counts():
+    rng = np.random.default_rng(3)
+    cistern = random_cistern(rng, 4, chambers=3, stations=6)
+    assert cistern.chambers == 3 and len(cistern.spec.stations) == 6 and cistern.spec.id == "cistern-004"
+    with pytest.raises(ValueError, match="chambers must be 1-3"):
+        random_cistern(rng, chambers=4)
+
+
+def test_simulated_into_a_catalog_with_truth(tmp_path: Path):
+    from cistern_archive.catalog.loader import load_record
+
+    cistern = random_cistern(np.random.default_rng(11), 0, chambers=2, stations=6)
+    record_path = simulate_into(write_specs([cistern], tmp_path)[0], tmp_path)
+    record = load_record(record_path, tmp_path).record
+    assert [t.station for t in record.truth] == [s.name for s in cistern.spec.stations]
+    assert record.simulation == "specs/cistern-000.yaml"
+    assert len(list((tmp_path / "data" / "cistern-000").glob("*.npz"))) == 6
+
+
+@pytest.mark.parametrize(("k", "n", "low", "high"), [
+    (5, 10, 0.2366, 0.7634),     # Wilson (1927); Newcombe (1998), Table I
+    (0, 10, 0.0, 0.2775),
+    (10, 10, 0.7225, 1.0),
+    (81, 263, 0.2553, 0.3662),   # Newcombe (1998), example of Table I
+])
+def test_wilson_interval_known_values(k: int, n: int, low: float, high: float):
+    lo, hi = wilson_interval(k, n)
+    assert lo == pytest.approx(low, abs=1e-4) and hi == pytest.approx(high, abs=1e-4)
+
+
+def test_wilson_interval_edges():
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
+    with pytest.raises(ValueError, match="within 0..3"):
+        wilson_interval(4, 3)
+    lo, hi = wilson_interval(40, 40)
+    assert lo < 1.0 and hi == 1.0
+
+
+@pytest.mark.slow
+def test_sites_random_json_interface():
+    """``benchmarks/sites.py --random 1`` through the real runner: the last line is the interface."""
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sites.py"), "--random", "1", "--seed", "3",
+                          "--far-pairs", "2", "--json"], capture_output=True, text=True, timeout=600, check=True)
+    last = json.loads(out.stdout.strip().splitlines()[-1])
+    assert list(last) == ["sites", "scans", "placed", "pairs_ge50", "pairs_ge50_ok", "far_pairs",
+                          "far_pairs_converged", "median_aligned_error_m", "max_aligned_error_m",
+                          "silent_wrong_sites"]
+    expected = random_cisterns(1, 3)[0]
+    assert last["sites"] == 1 and last["scans"] == len(expected.spec.stations)
+    assert 0 <= last["placed"] <= last["scans"] and 0 <= last["pairs_ge50_ok"] <= last["pairs_ge50"]
+    assert last["far_pairs"] <= 2 and last["far_pairs_converged"] <= last["far_pairs"]
+    assert last["silent_wrong_sites"] in (0, 1)
+    if last["placed"] >= 2:
+        assert 0 <= last["median_aligned_error_m"] <= last["max_aligned_error_m"]
+    assert "scans placed" in out.stdout and "[" in out.stdout  # the table with Wilson intervals
