@@ -67,7 +67,7 @@ class SonarSettings(Strict):
 class Segmentation(Strict):
     """Beam segmentation (paper Sec. III-B) settings."""
 
-    method: Literal["paper", "cfar"] = "paper"
+    method: Literal["paper", "cfar", "shadow"] = "paper"
     threshold: float = Field(default=50.0, ge=0, le=255)
     min_range_m: float = Field(default=0.0, ge=0)
 
