@@ -32,7 +32,8 @@ shape (beams x bins x bin size) is segmented with ``REAL_MIN_RANGE_M`` blanking,
 * ``echo``: fraction of beams with an echo;
 * ``repeat``: consistency of consecutive sweeps of the stationary head: of the beams with an echo in
   one sweep and an echo on the nearest bearing (within half a step) of the next, the fraction within
-  ``max(2 bins, 0.05 m)`` of each other;
+  ``max(2 bins, 0.05 m)`` of each other; ``repeat_beyond_edge`` the same for the echoes beyond ``edge``
+  (a rule that always marks the blanking edge repeats perfectly and finds nothing);
 * ``edge``: fraction of echoes within 0.1 m beyond the blanking range (ring-down leaking past it);
 * ``patch``: fraction of echoes within 0.1 m of the edge of the diffuse patch (the first range beyond the
   blanking where the across-beam median of the smoothed image falls below the threshold: the outer edge of
@@ -72,6 +73,9 @@ REAL_FILES = [
     "seanet/90degree_scan_target_moving_in.V4LOG",
 ]
 REAL_MIN_RANGE_M = 0.5
+EDGE_M = 0.1
+REAL_ZOOM_M = {"UdpHubLog_4001_2017_11_02_09_00_03.csv": 15.0, "BIN__20240814-102337673.bin": 8.0,
+               "BIN__20240814-102841366.bin": 8.0}
 SEED_BASE = {"tune": 0, "report": 1000}
 TUNE_GRID = {"SHADOW_LEAD_MARGIN": [10.0, 20.0, 35.0], "SHADOW_MARGIN": [35.0, 50.0, 65.0, 80.0],
              "SHADOW_TRAIL_M": [0.2, 0.4, 0.6]}
@@ -276,14 +280,15 @@ def patch_edge_m(scan, settings: Segmentation) -> float | None:
     return float(scan.bin_centres_m[below[0]]) if below.size else None
 
 
-def _repeat_agreement(a, b, tol: float) -> tuple[int, int]:
-    """(agreeing, compared) echo pairs of two sweeps on nearest bearings within half a step."""
+def _repeat_agreement(a, b, tol: float, beyond_m: float = 0.0) -> tuple[int, int]:
+    """(agreeing, compared) echo pairs of two sweeps on nearest bearings within half a step, counting
+    only pairs whose echoes are both farther than ``beyond_m``."""
     step = float(np.median(np.abs(np.diff(np.unwrap(a.bearings_rad))))) if a.bearings_rad.size > 1 else 0.0
     diff = np.abs(np.mod(a.bearings_rad[:, None] - b.bearings_rad[None, :] + np.pi, 2 * np.pi) - np.pi)
     nearest = np.argmin(diff, axis=1)
     close = diff[np.arange(diff.shape[0]), nearest] <= step / 2 + 1e-9
     ra, rb = a.ranges_m, b.ranges_m[nearest]
-    both = close & np.isfinite(ra) & np.isfinite(rb)
+    both = close & (np.nan_to_num(ra) > beyond_m) & (np.nan_to_num(rb) > beyond_m)
     return int(np.count_nonzero(both & (np.abs(ra - rb) <= tol))), int(np.count_nonzero(both))
 
 
@@ -292,17 +297,18 @@ def real_metrics(sweeps: list, method: str) -> dict:
     settings = Segmentation(method=method, min_range_m=REAL_MIN_RANGE_M)
     ranges = [seg.segment(s, settings) for s in sweeps]
     tol = max(TOL_BINS * sweeps[0].bin_size_m, 0.05)
-    agree = compared = 0
+    counts = np.zeros((2, 2), dtype=int)  # (all echoes, beyond the edge) x (agreeing, compared)
     for a, b in zip(ranges, ranges[1:]):
-        ok, n = _repeat_agreement(a, b, tol)
-        agree, compared = agree + ok, compared + n
+        counts[0] += _repeat_agreement(a, b, tol)
+        counts[1] += _repeat_agreement(a, b, tol, beyond_m=REAL_MIN_RANGE_M + EDGE_M)
     echoes = np.concatenate([r.ranges_m[r.valid] for r in ranges])
     edges = [patch_edge_m(s, settings) for s in sweeps]
-    at_patch = [np.abs(r.ranges_m[r.valid] - e) <= 0.1 for r, e in zip(ranges, edges) if e is not None]
+    at_patch = [np.abs(r.ranges_m[r.valid] - e) <= EDGE_M for r, e in zip(ranges, edges) if e is not None]
     return {
         "echo": round(float(np.mean([r.valid.mean() for r in ranges])), 4),
-        "repeat": round(agree / compared, 4) if compared else None,
-        "edge": round(float(np.mean(echoes <= REAL_MIN_RANGE_M + 0.1)), 4) if echoes.size else None,
+        "repeat": round(counts[0, 0] / counts[0, 1], 4) if counts[0, 1] else None,
+        "repeat_beyond_edge": round(counts[1, 0] / counts[1, 1], 4) if counts[1, 1] else None,
+        "edge": round(float(np.mean(echoes <= REAL_MIN_RANGE_M + EDGE_M)), 4) if echoes.size else None,
         "patch": round(float(np.concatenate(at_patch).mean()), 4) if at_patch and echoes.size else None,
         "median_range_m": round(float(np.median(echoes)), 3) if echoes.size else None,
     }
@@ -320,27 +326,31 @@ def real(figures: Path | None) -> dict:
         if not sweeps:
             continue
         first = sweeps[0]
-        entry: dict = {"sweeps": len(sweeps), "beams": first.n_beams, "bins": first.n_bins,
+        entry: dict = {"sweeps": len(sweeps), "beams": max(s.n_beams for s in sweeps), "bins": first.n_bins,
                        "bin_size_m": round(first.bin_size_m, 5)}
         for method in METHODS:
             entry[method] = real_metrics(sweeps, method)
         out[path.name] = entry
         if figures is not None:
             scan = max(sweeps, key=lambda s: s.n_beams)
-            write_figure(figures / f"seg_{path.stem}.png", scan, path.name, REAL_MIN_RANGE_M)
+            write_figure(figures / f"seg_{path.stem}.png", scan, path.name, REAL_MIN_RANGE_M, zoom_m=REAL_ZOOM_M.get(path.name))
     return out
 
 
 # --- figures -------------------------------------------------------------------------------------------
 
-def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.ndarray | None = None) -> None:
-    """Raw fan, then the echoes of each method over a dimmed fan (and the true walls if known)."""
+def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.ndarray | None = None,
+                 zoom_m: float | None = None) -> None:
+    """Raw fan, then the echoes of each method over a dimmed fan (and the true walls if known), within
+    ``zoom_m`` of the head (the whole range by default)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    image, extent = polar_to_cartesian(scan.bearings_rad, scan.normalised(), scan.bin_size_m,
-                                       scan.start_range_m, pixels=360)
-    fig = Figure(figsize=(4 * (1 + len(METHODS)), 4.4), dpi=90)
+    extent = scan.max_range_m
+    half = extent if zoom_m is None else min(zoom_m, extent)
+    image, extent = polar_to_cartesian(scan.bearings_rad, scan.normalised(), scan.bin_size_m, scan.start_range_m,
+                                       pixels=min(1600, int(300 * extent / half)))
+    fig = Figure(figsize=(3.2 * (1 + len(METHODS)), 3.6), dpi=80, layout="constrained")
     FigureCanvasAgg(fig)
     fig.suptitle(f"{title} (blanking {min_range_m} m)")
     vmax = float(np.nanpercentile(image, 99.5)) or 1.0
@@ -348,7 +358,8 @@ def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.n
         ax = fig.add_subplot(1, 1 + len(METHODS), k + 1)
         ax.imshow(image, extent=(-extent, extent, -extent, extent), cmap="inferno", vmin=0, vmax=vmax,
                   alpha=1.0 if k == 0 else 0.45)
-        ax.set_title(method if k else "raw intensities")
+        ax.set_title(method if k else f"raw intensities (±{half:.1f} m)")
+        ax.set_xlim(-half, half), ax.set_ylim(-half, half)
         ax.set_xticks([]), ax.set_yticks([])
         if truth is not None and k:
             ok = np.isfinite(truth)
@@ -370,8 +381,10 @@ def simulated_figures(families: dict[str, list], figures: Path) -> None:
     for family in ("chambers", "shallow", "demo"):
         spec, scans = families[family][0]
         sim = scans[0]
+        seen = sim.truth_ranges_m[np.isfinite(sim.truth_ranges_m)]
         write_figure(figures / f"seg_sim_{family}.png", sim.scan, f"simulated {family}: {spec.id} {sim.scan.station}",
-                     spec.segmentation.min_range_m, truth=sim.truth_ranges_m)
+                     spec.segmentation.min_range_m, truth=sim.truth_ranges_m,
+                     zoom_m=1.15 * float(seen.max()) if seen.size else None)
 
 
 # --- command line ------------------------------------------------------------------------------------

@@ -165,14 +165,19 @@ def _moving_average3(values: np.ndarray) -> np.ndarray:
 
 
 def _leading_noise(smooth: np.ndarray, train: int, guard: int) -> np.ndarray:
-    """Mean of the ``train`` bins ending ``guard`` bins before each bin (fewer near the start)."""
+    """Mean of the ``train`` bins ending ``guard`` bins before each bin (fewer near the start).
+
+    The first ``guard + 1`` bins have no training bins in front of them: their noise is ``inf``, so no
+    test can find them standing out.
+    """
     n_beams, n_bins = smooth.shape
     cumsum = np.concatenate([np.zeros((n_beams, 1)), np.cumsum(smooth, axis=1)], axis=1)
     idx = np.arange(n_bins)
     hi = np.clip(idx - guard, 0, n_bins)
     lo = np.clip(idx - guard - train, 0, n_bins)
-    count = np.maximum(hi - lo, 1)
-    return (cumsum[:, hi] - cumsum[:, lo]) / count
+    count = hi - lo
+    mean = (cumsum[:, hi] - cumsum[:, lo]) / np.maximum(count, 1)
+    return np.where(count > 0, mean, np.inf)
 
 
 def cfar_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -314,16 +319,18 @@ def _interpolated_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndar
 
 def peak_bins(scan: Scan, settings: SegmentationSettings) -> np.ndarray:
     """The echo bin of every beam (-1 for none) under ``settings.method``."""
+    if settings.method not in METHODS:
+        raise ValueError(f"unknown segmentation method {settings.method!r}; expected one of {', '.join(METHODS)}")
+    if scan.n_bins == 0 or scan.n_beams == 0:
+        return np.full(scan.n_beams, -1, dtype=np.int64)
     if settings.method == "paper":
         normalised = normalise_paper(_blank_near(scan, settings.min_range_m))
         return paper_peak_bins(normalised, settings.threshold)
     if settings.method == "cfar":
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
         return _first_strong_peaks(detections, smooth)
-    if settings.method == "shadow":
-        detections, smooth = shadow_detections(scan, settings.threshold, settings.min_range_m)
-        return _first_strong_peaks(detections, smooth, ratio=SHADOW_FIRST_RATIO)
-    raise ValueError(f"unknown segmentation method {settings.method!r}; expected one of {', '.join(METHODS)}")
+    detections, smooth = shadow_detections(scan, settings.threshold, settings.min_range_m)
+    return _first_strong_peaks(detections, smooth, ratio=SHADOW_FIRST_RATIO)
 
 
 def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
@@ -373,7 +380,7 @@ def segment_intensities(scan: Scan, settings: SegmentationSettings | None = None
     if settings is None:
         from cistern_archive.catalog.models import Segmentation
 
-        settings = Segmentation()
+        settings = Segmentation(method="paper")
     peaks = peak_bins(scan, settings)
     out = np.zeros(scan.intensities.shape, dtype=np.uint8)
     n_bins = scan.n_bins
