@@ -77,8 +77,8 @@ EDGE_M = 0.1
 REAL_ZOOM_M = {"UdpHubLog_4001_2017_11_02_09_00_03.csv": 15.0, "BIN__20240814-102337673.bin": 8.0,
                "BIN__20240814-102841366.bin": 8.0}
 SEED_BASE = {"tune": 0, "report": 1000}
-TUNE_GRID = {"SHADOW_LEAD_MARGIN": [10.0, 20.0, 35.0], "SHADOW_MARGIN": [35.0, 50.0, 65.0, 80.0],
-             "SHADOW_TRAIL_M": [0.2, 0.4, 0.6]}
+TUNE_GRID = {"SHADOW_LEAD_MARGIN": [10.0, 20.0, 35.0], "SHADOW_MARGIN": [50.0, 65.0, 80.0],
+             "SHADOW_TRAIL_M": [0.4, 0.6, 0.8], "SHADOW_ECHO_M": [0.3]}
 
 from cistern_archive.catalog.models import Segmentation  # noqa: E402
 from cistern_archive.sonar import segmentation as seg  # noqa: E402

@@ -151,7 +151,7 @@ def test_unknown_method_is_refused():
 # --- the shadow method -----------------------------------------------------------------------------
 
 SHADOW = Segmentation(method="shadow", threshold=50)
-BIN = 0.04  # the shadow method's windows are physical; 4 cm bins make them 8 + 2 leading, 2 + 10 trailing
+BIN = 0.04  # the shadow method's windows are physical; 4 cm bins make them 8 + 2 leading, 2 + 15 trailing
 
 
 NEAR_WALL = np.zeros(100, dtype=np.uint8)
@@ -212,13 +212,13 @@ def test_shadow_ignores_the_ring_down_beyond_the_blanking():
 
 
 def test_shadow_needs_room_behind_a_wall_to_see_its_shadow():
-    # The last SHADOW_GUARD_M + SHADOW_TRAIL_M / 2 (0.28 m, 7 bins) of the range hold no walls.
+    # The last SHADOW_GUARD_M + SHADOW_TRAIL_M / 2 (0.38 m, 9.5 bins) of the range hold no walls.
     row = np.zeros(50, dtype=np.uint8)
-    row[44:47] = [150, 200, 150]
+    row[42:45] = [150, 200, 150]
     assert np.isnan(segment(make_scan([row], bin_size=BIN), SHADOW).ranges_m[0])
     row = np.zeros(50, dtype=np.uint8)
-    row[40:43] = [150, 200, 150]
-    assert_allclose(segment(make_scan([row], bin_size=BIN), SHADOW).ranges_m, [41.5 * BIN], atol=1e-9)
+    row[34:37] = [150, 200, 150]
+    assert_allclose(segment(make_scan([row], bin_size=BIN), SHADOW).ranges_m, [35.5 * BIN], atol=1e-9)
 
 
 def test_shadow_windows_are_physical_lengths():

@@ -54,11 +54,15 @@ Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        ``SHADOW_TRAIL_M`` behind it (beyond ``SHADOW_GUARD_M``, the pulse's tail) by ``SHADOW_MARGIN``;
        the median ignores a ghost in that window. Where less than half the window is left before the last
        bin, the shadow cannot be seen and nothing is detected: the last
-       ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range setting (0.28 m) hold no walls, where the
+       ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range setting (0.38 m) hold no walls, where the
        receiver noise, amplified most by the time-varying gain, would otherwise pass the test;
     4. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
-       and may be stronger) starts the echo; its peak and sub-bin range are found as in ``cfar`` (steps
-       5-6, every detection counting as strong: a ghost casts no shadow over the wall in front of it).
+       and may be stronger; a ghost casts no shadow over the wall in front of it) starts the echo, which
+       lasts while the smoothed beam stays above the threshold, for at most ``SHADOW_ECHO_M``; its
+       largest smoothed value is the echo's peak. A wall met obliquely returns first from the edge of the
+       3° beam nearest to it, so the peak, where the beam's axis meets the wall, can lie a few bins after
+       the first detection;
+    5. the range is sub-bin, as in ``cfar`` (step 6).
 
     Windows are in metres (at least one bin), so heads with 2 mm bins and heads with 6 cm bins see the
     same physical extents. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the tuning
@@ -86,11 +90,11 @@ CFAR_TRAIN = 8
 CFAR_GUARD = 2
 CFAR_SCALE = 1.5
 FIRST_RATIO = 0.7
-SHADOW_TRAIL_M = 0.4
+SHADOW_TRAIL_M = 0.6
 SHADOW_GUARD_M = 0.08
 SHADOW_MARGIN = 65.0
 SHADOW_LEAD_MARGIN = 20.0
-SHADOW_FIRST_RATIO = 0.0
+SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
 METHODS = ("paper", "cfar", "shadow")
 
@@ -204,8 +208,8 @@ def cfar_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[n
     return detections, np.where(far[None, :], smooth, 0.0)
 
 
-def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray, ratio: float = FIRST_RATIO) -> np.ndarray:
-    """Per beam the peak bin of the first detected echo reaching ``ratio`` of the strongest; -1 if none.
+def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarray:
+    """Per beam the peak bin of the first detected echo reaching FIRST_RATIO of the strongest; -1 if none.
 
     The echo is the contiguous run of detections starting at its first strong bin; its peak is the run's
     largest smoothed value.
@@ -213,7 +217,7 @@ def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray, ratio: float
     n_beams, n_bins = smooth.shape
     masked = np.where(detections, smooth, 0.0)
     strongest = masked.max(axis=1) if n_bins else np.zeros(n_beams)
-    strong = detections & (masked >= ratio * strongest[:, None])
+    strong = detections & (masked >= FIRST_RATIO * strongest[:, None])
     has = strong.any(axis=1)
     first = np.argmax(strong, axis=1)
     peaks = np.full(n_beams, -1, dtype=np.int64)
@@ -296,6 +300,22 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple
     return detections, np.where(far[None, :], smooth, 0.0)
 
 
+def _echo_peaks(detections: np.ndarray, smooth: np.ndarray, threshold: float, longest: int) -> np.ndarray:
+    """Per beam the peak of the echo that starts at the first detection: the largest smoothed value over
+    the bins from there on that stay above ``threshold``, at most ``longest`` of them; -1 if none."""
+    n_beams, n_bins = smooth.shape
+    has = detections.any(axis=1)
+    first = np.argmax(detections, axis=1)
+    positions = np.where(smooth <= threshold, np.arange(n_bins)[None, :], n_bins)
+    run_end = np.minimum.accumulate(positions[:, ::-1], axis=1)[:, ::-1]
+    peaks = np.full(n_beams, -1, dtype=np.int64)
+    for beam in np.flatnonzero(has):
+        start = int(first[beam])
+        stop = min(int(run_end[beam, start]), start + longest, n_bins)
+        peaks[beam] = start + int(np.argmax(smooth[beam, start:max(stop, start + 1)]))
+    return peaks
+
+
 def _interpolated_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndarray, bin_size: float) -> np.ndarray:
     """Sub-bin echo ranges: the raw maximum next to each peak, refined by a parabola through it and its
     two neighbours (intensities are log-compressed, so this is a Gaussian fit); nan where peak is -1."""
@@ -330,7 +350,7 @@ def peak_bins(scan: Scan, settings: SegmentationSettings) -> np.ndarray:
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
         return _first_strong_peaks(detections, smooth)
     detections, smooth = shadow_detections(scan, settings.threshold, settings.min_range_m)
-    return _first_strong_peaks(detections, smooth, ratio=SHADOW_FIRST_RATIO)
+    return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m))
 
 
 def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
