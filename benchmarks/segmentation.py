@@ -2,7 +2,8 @@
 with truth and on real recordings without it.
 
 Simulated sites (the physical simulator, :mod:`cistern_archive.sonar.simulator`: reverberation through the
-35° vertical lobe, multipath ghosts, speckle, spikes, ring-down and the vehicle's own echo), three families:
+35° vertical lobe, multipath ghosts, speckle, spikes, ring-down and the vehicle's own echo), three families
+and the bell-shaped cistern apart:
 
 * ``demo``: every spec of ``catalog/specs`` re-simulated with other seeds; the bell-shaped cistern is
   reported apart (``bell``): its 35° lobe sees walls that lean in and out, so the wall at the sonar's depth
@@ -22,12 +23,14 @@ range. ``score`` = hit - false - missed (fractions of all beams): a beam states 
 range or, with no echo, free water up to the range setting (:class:`~cistern_archive.sonar.scan.RangeScan`),
 so a missed wall (free water through a wall) is as wrong as a false one.
 
-Seed sets: ``--set tune`` (seeds 1..N) chose the constants of ``cfar`` and ``shadow`` (``--tune`` runs
-the grid over the shadow constants and prints it); ``--set report`` (seeds 1001..1000+N, and the demo
-specs with their catalog seed plus 1000 and 2000) is what ``RESULTS.md`` reports.
+Seed sets: ``--set tune`` (random seeds 1..N, the demo specs with their catalog seed plus 3000) chose the
+constants of ``shadow`` (``--tune`` runs the grid ``TUNE_GRID`` over them and prints it, best first);
+``--set report`` (random seeds 1001..1000+N, the demo specs with their catalog seed plus 1000 and 2000)
+is what ``RESULTS.md`` reports.
 
-Real recordings (``../shared/data``, no truth): for every file, every sweep of the file's most common
-shape (beams x bins x bin size) is segmented with ``REAL_MIN_RANGE_M`` blanking, and
+Real recordings (``../shared/data``, no truth): for every file, its full revolutions (when it holds two or
+more of one setting) or else the sweeps of its most repeated sector setting are segmented with
+``REAL_MIN_RANGE_M`` blanking (:func:`real_sweeps`), and
 
 * ``echo``: fraction of beams with an echo;
 * ``repeat``: consistency of consecutive sweeps of the stationary head: of the beams with an echo in
@@ -51,9 +54,9 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import io
 import itertools
 import json
-import math
 import sys
 import time
 from collections import Counter
@@ -372,7 +375,7 @@ def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.n
             ax.scatter(-rs.ranges_m[ok] * np.sin(rs.bearings_rad[ok]), rs.ranges_m[ok] * np.cos(rs.bearings_rad[ok]),
                        s=2, c="#3fa9f5", label="echo")
     target.parent.mkdir(parents=True, exist_ok=True)
-    buffer = __import__("io").BytesIO()
+    buffer = io.BytesIO()
     fig.savefig(buffer, format="png", metadata={"Software": None})
     target.write_bytes(buffer.getvalue())
 

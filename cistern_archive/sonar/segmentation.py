@@ -1,6 +1,6 @@
 """Beam segmentation: raw echo intensities to one wall range per beam.
 
-Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
+Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
 
 ``paper``
     McVicker et al., Sec. III-B, exactly: the intensities of the whole scan are normalised to 0..255 by
