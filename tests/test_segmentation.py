@@ -10,7 +10,11 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from cistern_archive.catalog.models import Segmentation
 from cistern_archive.sonar.scan import Scan
+from cistern_archive.sonar.simulator import TruePose, simulate_scan
+from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec
+from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.segmentation import (
+    METHODS,
     normalise_paper,
     paper_peak_bins,
     segment,
@@ -142,3 +146,142 @@ def test_unknown_method_is_refused():
 
     with pytest.raises(ValueError, match="magic"):
         segment(make_scan([[0, 1, 2]]), Odd())
+
+
+# --- the shadow method -----------------------------------------------------------------------------
+
+SHADOW = Segmentation(method="shadow", threshold=50)
+BIN = 0.04  # the shadow method's windows are physical; 4 cm bins make them 8 + 2 leading, 2 + 15 trailing
+
+
+NEAR_WALL = np.zeros(100, dtype=np.uint8)
+NEAR_WALL[20:23] = [200, 250, 200]  # another beam's strong wall, which sets the scan's normalisation
+
+
+def reverberation_row(n: int, start: int, stop: int, seed: int = 0) -> np.ndarray:
+    """Zeros, with a speckled reverberation plateau (90-140) over ``start:stop``."""
+    row = np.zeros(n, dtype=np.uint8)
+    row[start:stop] = np.random.default_rng(seed).integers(90, 141, size=stop - start)
+    return row
+
+
+def test_default_method_is_shadow():
+    assert Segmentation().method == "shadow"
+    assert set(METHODS) == {"paper", "cfar", "shadow"}
+
+
+def test_shadow_finds_the_wall_behind_floor_reverberation():
+    # Reverberation from 0.6 m up to the wall at 2.4 m, with a one-bin speckle peak brighter than the
+    # wall; behind the wall only its shadow.
+    row = reverberation_row(100, 15, 60)
+    row[30] = 210
+    row[60:63] = [170, 190, 170]
+    scan = make_scan([row, NEAR_WALL], bin_size=BIN)
+    assert_allclose(segment(scan, PAPER).ranges_m[0], 30.5 * BIN)  # the paper's maximum: the speckle
+    assert_allclose(segment(scan, SHADOW).ranges_m[0], 61.5 * BIN, atol=1e-9)
+
+
+def test_shadow_sees_no_wall_in_reverberation_that_goes_on():
+    # The same plateau with no wall: every bump is followed by more reverberation, none by a shadow.
+    row = reverberation_row(100, 15, 100, seed=1)
+    row[40:43] = [150, 175, 150]
+    scan = make_scan([row, NEAR_WALL], bin_size=BIN)
+    assert np.isfinite(segment(scan, PAPER).ranges_m[0])
+    assert np.isnan(segment(scan, SHADOW).ranges_m[0])
+    assert_allclose(segment(scan, SHADOW).ranges_m[1], 21.5 * BIN, atol=1e-9)
+
+
+def test_shadow_takes_the_wall_not_a_stronger_ghost():
+    row = np.zeros(80, dtype=np.uint8)
+    row[20:23] = [150, 200, 150]  # the wall
+    row[30:33] = [170, 240, 170]  # a stronger multipath ghost 0.4 m behind it
+    scan = make_scan([row], bin_size=BIN)
+    assert_allclose(segment(scan, PAPER).ranges_m, [31.5 * BIN])
+    assert_allclose(segment(scan, SHADOW).ranges_m, [21.5 * BIN], atol=1e-9)
+
+
+def test_shadow_ignores_the_ring_down_beyond_the_blanking():
+    # The transducer rings at full scale to 0.48 m and decays; blanking at 0.4 m leaves its tail.
+    k = np.arange(80)
+    row = np.where(k < 12, 250, 250 * np.exp(-(k - 12) / 4.0)).astype(np.uint8)
+    row[40:43] = [150, 200, 150]
+    scan = make_scan([row], bin_size=BIN)
+    blanked = {"min_range_m": 0.4}
+    assert_allclose(segment(scan, PAPER.model_copy(update=blanked)).ranges_m, [10.5 * BIN])  # the blanking edge
+    assert_allclose(segment(scan, SHADOW.model_copy(update=blanked)).ranges_m, [41.5 * BIN], atol=1e-9)
+
+
+def test_shadow_needs_room_behind_a_wall_to_see_its_shadow():
+    # The last SHADOW_GUARD_M + SHADOW_TRAIL_M / 2 (0.38 m, 9.5 bins) of the range hold no walls.
+    row = np.zeros(50, dtype=np.uint8)
+    row[42:45] = [150, 200, 150]
+    assert np.isnan(segment(make_scan([row], bin_size=BIN), SHADOW).ranges_m[0])
+    row = np.zeros(50, dtype=np.uint8)
+    row[34:37] = [150, 200, 150]
+    assert_allclose(segment(make_scan([row], bin_size=BIN), SHADOW).ranges_m, [35.5 * BIN], atol=1e-9)
+
+
+def test_shadow_windows_are_physical_lengths():
+    # The reverberation case sampled four times finer gives the same wall.
+    coarse = reverberation_row(100, 15, 60)
+    coarse[30] = 210
+    coarse[60:63] = [170, 190, 170]
+    fine = np.repeat(coarse, 4)
+    ranges = segment(make_scan([fine], bin_size=BIN / 4), SHADOW).ranges_m
+    assert abs(ranges[0] - 61.5 * BIN) < BIN
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_degenerate_scans_give_no_wall_and_no_error(method):
+    settings = Segmentation(method=method, min_range_m=0.1)
+    empty = segment(make_scan([[0] * 20, [0] * 20]), settings)
+    assert empty.ranges_m.shape == (2,) and np.all(np.isnan(empty.ranges_m))
+    one_bin = segment(make_scan([[200], [0]]), settings)
+    assert one_bin.ranges_m.shape == (2,) and np.all(np.isnan(one_bin.ranges_m))
+    no_beams = Scan(bearings_rad=np.zeros(0), intensities=np.zeros((0, 20), dtype=np.uint8), full_scale=255,
+                    bin_size_m=0.05)
+    assert segment(no_beams, settings).ranges_m.shape == (0,)
+    no_bins = Scan(bearings_rad=np.zeros(3), intensities=np.zeros((3, 0), dtype=np.uint8), full_scale=255,
+                   bin_size_m=0.05)
+    assert np.all(np.isnan(segment(no_bins, settings).ranges_m))
+
+
+def test_saturated_scan_has_no_wall_except_under_the_paper_rule():
+    scan = make_scan(np.full((3, 40), 255))
+    # Every bin ties at 255: the paper's rule keeps the nearest beyond the blanking.
+    assert_allclose(segment(scan, Segmentation(method="paper", min_range_m=0.1)).ranges_m, [0.125] * 3)
+    # Nothing rises above what precedes it (bins with no training cells in front are never detections).
+    for method in ("cfar", "shadow"):
+        for min_range_m in (0.0, 0.1):
+            ranges = segment(scan, Segmentation(method=method, min_range_m=min_range_m)).ranges_m
+            assert np.all(np.isnan(ranges)), (method, min_range_m)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_shadow_beats_the_paper_on_a_simulated_shallow_site(seed):
+    """A box 4 m x 3 m in 1 m of water, the head 0.25 m above the floor (the 35° lobe meets it 0.8 m out),
+    floor reverberation 8 dB above the default and ghosts on a fifth of the beams."""
+    sim = simulate_scan([np.array([[0, 0], [4.0, 0], [4.0, 3.0], [0, 3.0]])], TruePose("t", 1.4, 1.1, 0.3, 0.75),
+                        SonarSpec(range_m=6.0, bins=150), EffectsSpec(floor_db=-16.0, multipath_fraction=0.2),
+                        np.random.default_rng(seed), water_depth_m=1.0)
+    scores = {}
+    for method in ("paper", "shadow"):
+        ranges = segment(sim.scan, Segmentation(method=method, min_range_m=0.4)).ranges_m
+        hit = np.abs(ranges - sim.truth_ranges_m) <= 2 * sim.scan.bin_size_m
+        scores[method] = (hit.mean(), (np.isfinite(ranges) & ~hit).mean())
+    assert scores["shadow"][0] >= scores["paper"][0]
+    assert scores["shadow"][1] < 0.85 * scores["paper"][1]
+    assert scores["shadow"][1] < 0.09
+
+
+@pytest.mark.realdata
+def test_real_ping360_ring_down_is_a_wall_for_the_paper_rule_only(shared_data):
+    """A Ping360 revolution (10 m, 8 mm bins): the paper's maximum sits on the blanking edge on almost
+    every beam, the shadow rule's echoes almost never."""
+    scans = [s for s in read_file(shared_data / "ping360" / "Sensor_Log_01__inside_base_dakhel_paygah.bin").scans
+             if s.n_beams >= 390 and s.bin_size_m > 0.005]
+    assert scans
+    for method, low, high in (("paper", 0.9, 1.0), ("shadow", 0.0, 0.05)):
+        ranges = segment(scans[0], Segmentation(method=method, min_range_m=0.5))
+        at_edge = np.mean(ranges.ranges_m[ranges.valid] <= 0.6)
+        assert low <= at_edge <= high, (method, at_edge)

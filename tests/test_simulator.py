@@ -262,7 +262,7 @@ def test_rough_walls_echo_at_grazing_incidence():
     far, on_wall = {}, {}
     for roughness in (None, 0.3):
         sim = simulate_site(_gallery_spec(roughness)).scans[0]  # default (noisy) effects
-        ranges = segment(sim.scan, Segmentation(threshold=50, min_range_m=0.4)).ranges_m
+        ranges = segment(sim.scan, Segmentation(method="paper", threshold=50, min_range_m=0.4)).ranges_m
         grazing = np.isfinite(sim.truth_ranges_m) & (sim.truth_ranges_m > 2.0) & (sim.truth_ranges_m < 5.0)
         far[roughness] = float(np.mean(ranges[grazing] > 1.5))
         on_wall[roughness] = float(np.mean(np.abs(ranges[grazing] - sim.truth_ranges_m[grazing]) < 0.15))

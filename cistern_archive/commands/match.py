@@ -67,7 +67,7 @@ def register(app: typer.Typer) -> None:
                                     help="Matcher plugin name (default: the catalog's default matcher)."),
         params: str = typer.Option("{}", "--params", help="Matcher parameters as a JSON object."),
         seed: int = typer.Option(0, "--seed", help="Random seed."),
-        segmentation: str = typer.Option("paper", "--segmentation", help="Beam segmentation: paper or cfar."),
+        segmentation: str = typer.Option("paper", "--segmentation", help="Beam segmentation: paper, cfar or shadow."),
         min_range: float = typer.Option(0.4, "--min-range", min=0.0,
                                         help="Blank echoes nearer than this (m): the head's ring-down and the vehicle."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),

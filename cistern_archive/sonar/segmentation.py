@@ -1,6 +1,6 @@
 """Beam segmentation: raw echo intensities to one wall range per beam.
 
-Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
+Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
 
 ``paper``
     McVicker et al., Sec. III-B, exactly: the intensities of the whole scan are normalised to 0..255 by
@@ -37,9 +37,44 @@ Two methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
     6. the range is sub-bin: the raw maximum next to the echo's peak, refined by a parabola through it and
        its neighbours (a Gaussian fit, the intensities being log-compressed).
 
-Both return a :class:`~cistern_archive.sonar.scan.RangeScan`. The CFAR constants below were chosen on
-simulated scans whose seeds are not those of the bundled catalog; ``benchmarks/segmentation.py`` compares
-the two methods.
+``shadow``
+    Tests of what tells a wall from what fills the water in front of it and from the ghosts behind it:
+
+    1. each beam is smoothed over 0.12 m (3 bins of 4 cm) and the image normalised to 0..255 by its
+       maximum beyond ``min_range_m``, as in ``cfar``;
+    2. **a wall rises above the water in front of it**: a detection exceeds the threshold and the mean of
+       its leading training window (``CFAR_TRAIN`` x 4 cm, before ``CFAR_GUARD`` x 4 cm of guard) by
+       ``SHADOW_LEAD_MARGIN``. Intensities are log-compressed (a count is a fixed number of dB), so the
+       test is a difference, not ``cfar``'s ratio, which inside strong floor reverberation (100+ counts)
+       asks a wall for 8 dB more than the reverberation and loses it. The decaying ring-down and near
+       field never rise above what precedes them, so they fail this test beyond the blanking;
+    3. **a wall casts a shadow**: it is opaque, so behind its echo the beam holds only noise and the
+       occasional multipath ghost, while floor and surface reverberation entering through the 35° vertical
+       lobe, the water column and the near field go on. A detection must exceed the **median** of the
+       ``SHADOW_TRAIL_M`` behind it (beyond ``SHADOW_GUARD_M``, the pulse's tail) by ``SHADOW_MARGIN``;
+       the median ignores a ghost in that window. Where less than half the window is left before the last
+       bin, the shadow cannot be seen and nothing is detected: the last
+       ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range setting (0.38 m) hold no walls, where the
+       receiver noise, amplified most by the time-varying gain, would otherwise pass the test;
+    4. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
+       and may be stronger; a ghost casts no shadow over the wall in front of it) starts the echo, which
+       lasts while the smoothed beam stays above the threshold, for at most ``SHADOW_ECHO_M``; its
+       largest smoothed value is the echo's peak. A wall met obliquely returns first from the edge of the
+       3° beam nearest to it, so the peak, where the beam's axis meets the wall, can lie a few bins after
+       the first detection;
+    5. the range is sub-bin, as in ``cfar`` (step 6).
+
+    Windows are in metres (at least one bin), so heads with 2 mm bins and heads with 6 cm bins see the
+    same physical extents. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the tuning
+    set and dropped: smoothing across 3 or 5 beams, and keeping only detections that an adjacent beam
+    confirms within 0.08-0.16 m; both missed more walls (grazing ones, whose range changes fast from beam
+    to beam) than they removed false ones. So was looking for the shadow behind the end of a long
+    (grazing) echo rather than behind its leading edge: it accepted leading edges decimetres before the
+    wall on the beam's axis.
+
+Every method returns a :class:`~cistern_archive.sonar.scan.RangeScan`. The CFAR and shadow constants below
+were chosen on simulated scans whose seeds are not those of the bundled catalog, and reported on others;
+``benchmarks/segmentation.py`` compares the three methods.
 """
 
 from __future__ import annotations
@@ -55,6 +90,13 @@ CFAR_TRAIN = 8
 CFAR_GUARD = 2
 CFAR_SCALE = 1.5
 FIRST_RATIO = 0.7
+SHADOW_TRAIL_M = 0.6
+SHADOW_GUARD_M = 0.08
+SHADOW_MARGIN = 65.0
+SHADOW_LEAD_MARGIN = 20.0
+SHADOW_ECHO_M = 0.3
+TUNED_BIN_M = 0.04
+METHODS = ("paper", "cfar", "shadow")
 
 
 class SegmentationSettings(Protocol):
@@ -127,14 +169,19 @@ def _moving_average3(values: np.ndarray) -> np.ndarray:
 
 
 def _leading_noise(smooth: np.ndarray, train: int, guard: int) -> np.ndarray:
-    """Mean of the ``train`` bins ending ``guard`` bins before each bin (fewer near the start)."""
+    """Mean of the ``train`` bins ending ``guard`` bins before each bin (fewer near the start).
+
+    The first ``guard + 1`` bins have no training bins in front of them: their noise is ``inf``, so no
+    test can find them standing out.
+    """
     n_beams, n_bins = smooth.shape
     cumsum = np.concatenate([np.zeros((n_beams, 1)), np.cumsum(smooth, axis=1)], axis=1)
     idx = np.arange(n_bins)
     hi = np.clip(idx - guard, 0, n_bins)
     lo = np.clip(idx - guard - train, 0, n_bins)
-    count = np.maximum(hi - lo, 1)
-    return (cumsum[:, hi] - cumsum[:, lo]) / count
+    count = hi - lo
+    mean = (cumsum[:, hi] - cumsum[:, lo]) / np.maximum(count, 1)
+    return np.where(count > 0, mean, np.inf)
 
 
 def cfar_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -182,6 +229,93 @@ def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarra
     return peaks
 
 
+def _bins(length_m: float, bin_size_m: float) -> int:
+    """A physical length as a whole number of bins, at least one."""
+    return max(1, int(round(length_m / bin_size_m)))
+
+
+def _moving_average(values: np.ndarray, width: int, axis: int) -> np.ndarray:
+    """Centred moving average of odd ``width`` along ``axis``; the ends repeat the edge values."""
+    half = width // 2
+    if half == 0 or values.shape[axis] == 0:
+        return values.copy()
+    pad = [(0, 0), (0, 0)]
+    pad[axis] = (half + 1, half)
+    cumsum = np.cumsum(np.pad(values, pad, mode="edge"), axis=axis)
+    n = values.shape[axis]
+    upper = np.take(cumsum, np.arange(width, width + n), axis=axis)
+    lower = np.take(cumsum, np.arange(0, n), axis=axis)
+    return (upper - lower) / width
+
+
+def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, guard: int, trail: int) -> np.ndarray:
+    """Median of the ``trail`` bins starting ``guard + 1`` bins after each (beam, bin) candidate.
+
+    Windows are cut at the last bin; a candidate with less than half a window behind it gets ``inf`` (its
+    shadow cannot be seen, so it cannot pass the test). Long windows (fine bins) are sampled at most 16
+    times, evenly, which keeps the cost bounded on heads with over a thousand bins.
+    """
+    n_bins = smooth.shape[1]
+    step = max(1, trail // 16)
+    offsets = np.arange(guard + 1, guard + 1 + trail, step)
+    idx = bins[:, None] + offsets[None, :]
+    inside = idx < n_bins
+    samples = np.where(inside, smooth[beams[:, None], np.minimum(idx, n_bins - 1)], np.nan)
+    out = np.full(bins.size, np.inf)
+    enough = inside.sum(axis=1) * 2 >= offsets.size
+    if enough.any():
+        out[enough] = np.nanmedian(samples[enough], axis=1)
+    return out
+
+
+def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Detection mask and normalised smoothed image of the ``shadow`` method (steps 1-3).
+
+    Returns
+    -------
+    detections : ndarray of bool, shape (A, B)
+        Bins beyond ``min_range_m`` above ``threshold``, ``SHADOW_LEAD_MARGIN`` above their leading
+        training mean and ``SHADOW_MARGIN`` above the median of the water behind them.
+    smooth : ndarray of float64, shape (A, B)
+        The image smoothed over 0.12 m along each beam, normalised to 0..255 by its maximum beyond
+        ``min_range_m``.
+    """
+    bin_m = scan.bin_size_m
+    values = _blank_near(scan, 0.0)
+    width = 2 * (_bins(3 * TUNED_BIN_M, bin_m) // 2) + 1
+    smooth = _moving_average(values, width, axis=1)
+    far = scan.bin_centres_m >= min_range_m
+    peak = float(smooth[:, far].max()) if smooth[:, far].size else 0.0
+    if peak <= 0:
+        return np.zeros(smooth.shape, dtype=bool), np.zeros_like(smooth)
+    smooth *= PAPER_SCALE / peak
+    noise = _leading_noise(smooth, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
+    candidates = (smooth > threshold) & (smooth - noise >= SHADOW_LEAD_MARGIN) & far[None, :]
+    beams, bins = np.nonzero(candidates)
+    guard, trail = _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m)
+    behind = _trailing_median(smooth, beams, bins, guard, trail)
+    shadowed = smooth[beams, bins] - behind >= SHADOW_MARGIN
+    detections = np.zeros_like(candidates)
+    detections[beams, bins] = shadowed
+    return detections, np.where(far[None, :], smooth, 0.0)
+
+
+def _echo_peaks(detections: np.ndarray, smooth: np.ndarray, threshold: float, longest: int) -> np.ndarray:
+    """Per beam the peak of the echo that starts at the first detection: the largest smoothed value over
+    the bins from there on that stay above ``threshold``, at most ``longest`` of them; -1 if none."""
+    n_beams, n_bins = smooth.shape
+    has = detections.any(axis=1)
+    first = np.argmax(detections, axis=1)
+    positions = np.where(smooth <= threshold, np.arange(n_bins)[None, :], n_bins)
+    run_end = np.minimum.accumulate(positions[:, ::-1], axis=1)[:, ::-1]
+    peaks = np.full(n_beams, -1, dtype=np.int64)
+    for beam in np.flatnonzero(has):
+        start = int(first[beam])
+        stop = min(int(run_end[beam, start]), start + longest, n_bins)
+        peaks[beam] = start + int(np.argmax(smooth[beam, start:max(stop, start + 1)]))
+    return peaks
+
+
 def _interpolated_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndarray, bin_size: float) -> np.ndarray:
     """Sub-bin echo ranges: the raw maximum next to each peak, refined by a parabola through it and its
     two neighbours (intensities are log-compressed, so this is a Gaussian fit); nan where peak is -1."""
@@ -205,24 +339,29 @@ def _interpolated_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndar
 
 def peak_bins(scan: Scan, settings: SegmentationSettings) -> np.ndarray:
     """The echo bin of every beam (-1 for none) under ``settings.method``."""
+    if settings.method not in METHODS:
+        raise ValueError(f"unknown segmentation method {settings.method!r}; expected one of {', '.join(METHODS)}")
+    if scan.n_bins == 0 or scan.n_beams == 0:
+        return np.full(scan.n_beams, -1, dtype=np.int64)
     if settings.method == "paper":
         normalised = normalise_paper(_blank_near(scan, settings.min_range_m))
         return paper_peak_bins(normalised, settings.threshold)
     if settings.method == "cfar":
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
         return _first_strong_peaks(detections, smooth)
-    raise ValueError(f"unknown segmentation method {settings.method!r}; expected 'paper' or 'cfar'")
+    detections, smooth = shadow_detections(scan, settings.threshold, settings.min_range_m)
+    return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m))
 
 
 def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
-    """Segment every beam of ``scan`` into a wall range (paper Sec. III-B, or the CFAR alternative).
+    """Segment every beam of ``scan`` into a wall range (paper Sec. III-B, or the CFAR or shadow rule).
 
     Parameters
     ----------
     scan : Scan
         Raw intensities.
     settings : Segmentation
-        ``method`` ('paper' | 'cfar'), ``threshold`` (on the 0..255 normalised scale) and
+        ``method`` ('paper' | 'cfar' | 'shadow'), ``threshold`` (on the 0..255 normalised scale) and
         ``min_range_m``.
 
     Returns
@@ -232,7 +371,7 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
     """
     peaks = peak_bins(scan, settings)
     centres = scan.bin_centres_m
-    if settings.method == "cfar":
+    if settings.method in ("cfar", "shadow"):
         ranges = _interpolated_ranges(_blank_near(scan, settings.min_range_m), peaks, centres, scan.bin_size_m)
     else:
         ranges = np.where(peaks >= 0, centres[np.clip(peaks, 0, None)] if centres.size else np.nan, np.nan)
@@ -251,8 +390,8 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
 def segment_intensities(scan: Scan, settings: SegmentationSettings | None = None) -> np.ndarray:
     """The segmented image: the echo bin of each beam and its two neighbours 255, all else 0.
 
-    This is the paper's output image (Sec. III-B); with ``settings.method == 'cfar'`` the marked bin is
-    the CFAR echo's peak. ``settings`` defaults to the paper's rule with threshold 50.
+    This is the paper's output image (Sec. III-B); with ``cfar`` or ``shadow`` the marked bin is the
+    echo's peak. ``settings`` defaults to the paper's rule with threshold 50.
 
     Returns
     -------
@@ -261,7 +400,7 @@ def segment_intensities(scan: Scan, settings: SegmentationSettings | None = None
     if settings is None:
         from cistern_archive.catalog.models import Segmentation
 
-        settings = Segmentation()
+        settings = Segmentation(method="paper")
     peaks = peak_bins(scan, settings)
     out = np.zeros(scan.intensities.shape, dtype=np.uint8)
     n_bins = scan.n_bins
