@@ -1,7 +1,9 @@
 """Fit the calibrated match verification (``plugins/cistern_plugins/verification.json``).
 
-Draws simulated pairs (:mod:`cistern_archive.testing.pairs`, the physical sonar simulator and the
-pipeline's segmentation) on a tuning seed, runs the point matchers with every verification limit off
+Draws simulated pairs on a tuning seed — pairs of random rooms and galleries
+(:mod:`cistern_archive.testing.pairs`) and every pair up to three stations apart in random
+multi-chamber cisterns (:mod:`cistern_archive.testing.chambers`), all through the physical sonar
+simulator and the pipeline's segmentation — runs the point matchers with every verification limit off
 (so each reports the pose its search found), labels each pose against the truth — correct: within
 0.10 m and 2°; wrong: more than 0.15 m or 3° off, or the two scans are of different sites; poses in
 between are left out — and fits a logistic model of ``P(correct)`` on the fit statistics of
@@ -10,7 +12,7 @@ which at most ``--false-match-rate`` of the wrong poses are accepted. The same i
 pairs of a second seed (``--seed``), with 95 % Wilson intervals, and everything is printed; with
 ``--write`` the model is written where the matchers read it.
 
-    python benchmarks/calibrate_verification.py --pairs 240 --tune-seed 101 --seed 202 --write --json
+    python benchmarks/calibrate_verification.py --pairs 100 --sites 12 --tune-seed 101 --seed 202 --write --json
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import time
 
 import numpy as np
 
-from cistern_archive.evaluation import wilson_interval
+from cistern_archive.evaluation import in_compass_frame, wilson_interval
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import match_pair
 from cistern_archive.testing.pairs import PairSpec, SimulatedPair, simulated_pair
@@ -42,6 +44,30 @@ def draw_pairs(n: int, seed: int, segmentation: str | None) -> list[SimulatedPai
     spec = PairSpec(sonar="simulator", segmentation=segmentation, max_offset_m=3.0)
     pairs = [simulated_pair(rng, spec=spec, overlap_range=(0.2, 0.95)) for _ in range(n)]
     return pairs + [simulated_pair(rng, spec=spec, overlapping=False) for _ in range(n // 2)]
+
+
+def site_pairs(n_sites: int, seed: int, max_gap: int = 3) -> list[SimulatedPair]:
+    """Every ordered pair up to ``max_gap`` stations apart in ``n_sites`` random multi-chamber cisterns
+    (:mod:`cistern_archive.testing.chambers`): scans that look through tunnels and openings into the
+    next chamber, as the pipeline meets them, segmented as the records' default does."""
+    from cistern_archive.sonar.segmentation import segment
+    from cistern_archive.sonar.simulator import simulate_site
+    from cistern_archive.testing.chambers import random_cisterns
+
+    out = []
+    for cistern in random_cisterns(n_sites, seed):
+        site = simulate_site(cistern.spec)
+        scans = [segment(s.scan, cistern.spec.segmentation) for s in site.scans]
+        poses = [s.pose for s in site.scans]
+        for i in range(len(scans)):
+            for j in range(len(scans)):
+                if i == j or abs(i - j) > max_gap:
+                    continue
+                err_i = scans[i].yaw_rad - poses[i].yaw_rad
+                d = in_compass_frame(np.array([poses[j].x_m - poses[i].x_m, poses[j].y_m - poses[i].y_m]), err_i)
+                dyaw = -((scans[j].yaw_rad - poses[j].yaw_rad) - err_i)
+                out.append(SimulatedPair(scans[i], scans[j], float(d[0]), float(d[1]), float(dyaw), 1.0, 0.0))
+    return out
 
 
 def labelled_fits(pairs: list[SimulatedPair], matcher_names=MATCHERS) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +136,8 @@ def rates(model: Calibration, x: np.ndarray, y: np.ndarray) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pairs", type=int, default=240, help="overlapping pairs per seed (and half as many without)")
+    ap.add_argument("--pairs", type=int, default=100, help="overlapping pairs per seed (and half as many without)")
+    ap.add_argument("--sites", type=int, default=12, help="random multi-chamber cisterns per seed")
     ap.add_argument("--tune-seed", type=int, default=101)
     ap.add_argument("--seed", type=int, default=202, help="the seed the rates are reported on")
     ap.add_argument("--false-match-rate", type=float, default=0.01)
@@ -119,19 +146,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    x_tune, y_tune = labelled_fits(draw_pairs(args.pairs, args.tune_seed, args.segmentation))
+    x_tune, y_tune = labelled_fits(draw_pairs(args.pairs, args.tune_seed, args.segmentation)
+                                   + site_pairs(args.sites, args.tune_seed))
     weights, bias = fit_logistic(x_tune, y_tune)
     probe = Calibration(tuple(weights), bias, 0.5, args.false_match_rate, {})
     p_tune = np.array([probe.probability(f) for f in x_tune])
     threshold = threshold_for(p_tune, y_tune, args.false_match_rate)
-    command = (f"python benchmarks/calibrate_verification.py --pairs {args.pairs} --tune-seed {args.tune_seed} "
+    command = (f"python benchmarks/calibrate_verification.py --pairs {args.pairs} --sites {args.sites} "
+               f"--tune-seed {args.tune_seed} "
                f"--seed {args.seed} --false-match-rate {args.false_match_rate}"
                + (f" --segmentation {args.segmentation}" if args.segmentation else "") + " --write")
     model = Calibration(tuple(float(w) for w in weights), bias, threshold, args.false_match_rate,
                         {"command": command, "tune_seed": args.tune_seed, "matchers": list(MATCHERS),
                          "segmentation": args.segmentation or "records' default",
                          "tune_correct": int((y_tune == 1).sum()), "tune_wrong": int((y_tune == 0).sum())})
-    x_test, y_test = labelled_fits(draw_pairs(args.pairs, args.seed, args.segmentation))
+    x_test, y_test = labelled_fits(draw_pairs(args.pairs, args.seed, args.segmentation) + site_pairs(args.sites, args.seed))
     out = {"model": model.to_json(), "tune": rates(model, x_tune, y_tune), "test": rates(model, x_test, y_test),
            "seconds": round(time.perf_counter() - t0, 1)}
     for name in ("tune", "test"):

@@ -9,8 +9,9 @@ builds a graph over the whole site instead, in three steps.
    solves the graph of the matches so far and asks for (a) every pair of scans whose solved positions
    are within ``reach`` (the smaller of the two sonar ranges times ``reach_factor``) with a
    :class:`~cistern_archive.pipeline.contracts.MatchGuess` — loop closures proposed from a first solution,
-   as SLAM systems search around their odometry — and (b) for scans the graph does not join to the
-   reference yet, global matches (no guess) with the scans up to ``global_gap`` stations away, both ways.
+   as SLAM systems search around their odometry — and (b) for each scan outside the largest group, a
+   global match (no guess, both ways) with the nearest station of another group not tried yet, up to
+   ``global_gap`` stations away.
    Scans more than ``level_tolerance_m`` apart in depth are never matched: at different depths of a
    bell-shaped cistern the walls differ, and the record's vertical ties (``below``) join the levels.
 
@@ -142,8 +143,27 @@ class SiteGraphLocalizer:
                     reach = p.reach_factor * min(scans[i].max_range_m, scans[j].max_range_m)
                     if math.hypot(rel.x(), rel.y()) <= reach:
                         out.append((i, j, MatchGuess(rel.x(), rel.y(), rel.theta(), p.guess_radius_m)))
-                elif j - i <= p.global_gap:
-                    out += [(i, j, None), (j, i, None)]
+        return out + self.bridging_pairs(scans, graph, tried, p)
+
+    def bridging_pairs(self, scans: Sequence[RangeScan], graph: "Graph", tried: set,
+                       p: SiteGraphParams) -> list[tuple[int, int, None]]:
+        """Global matches (both ways) for scans outside the largest group: for each, the untried pair of
+        one depth level with the nearest station in another group, at most ``global_gap`` stations away.
+        One pair per scan and round keeps the expensive global searches to the breaks of the chain."""
+        main = _largest_group(graph)
+        out: list[tuple[int, int, None]] = []
+        asked: set[frozenset] = set()
+        for k in range(len(scans)):
+            if graph.group[k] == main and len(graph.members(main)) > 1:
+                continue
+            for gap in range(1, p.global_gap + 1):
+                options = [j for j in (k - gap, k + gap) if 0 <= j < len(scans) and graph.group[j] != graph.group[k]
+                           and frozenset((k, j)) not in tried | asked and same_level(scans[k], scans[j], p)]
+                if options:
+                    j = options[0]
+                    asked.add(frozenset((k, j)))
+                    out += [(min(k, j), max(k, j), None), (max(k, j), min(k, j), None)]
+                    break
         return out
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
