@@ -211,19 +211,26 @@ def summarise(outcomes: list[dict[str, np.ndarray]]) -> dict:
     return out
 
 
+def site_outcomes(spec: SimulationSpec, scans: list, method: str) -> list[dict[str, np.ndarray]]:
+    """Beam outcomes of every scan of one site under ``method`` (the site's threshold and blanking)."""
+    settings = spec.segmentation.model_copy(update={"method": method})
+    return [beam_outcomes(sim, settings) for sim in scans]
+
+
 def evaluate(families: dict[str, list], methods=METHODS) -> dict[str, dict[str, dict]]:
-    """``{family: {method: summary}}`` with each site's own threshold and blanking."""
-    result: dict[str, dict[str, dict]] = {}
-    for family, sites in families.items():
-        result[family] = {}
-        for method in methods:
-            outcomes = [beam_outcomes(sim, spec.segmentation.model_copy(update={"method": method}))
-                        for spec, scans in sites for sim in scans]
-            result[family][method] = summarise(outcomes)
-    pooled = [f for f in families if f != "bell"]
+    """``{family: {method: summary}}``, plus ``all_vertical`` (every family but the bell) and, per family,
+    ``best_sites``: on how many sites each method has the highest score (ties count for each)."""
+    per_site = {f: [{m: site_outcomes(spec, scans, m) for m in methods} for spec, scans in sites]
+                for f, sites in families.items()}
+    result: dict[str, dict] = {}
+    for family, sites in per_site.items():
+        result[family] = {m: summarise([o for site in sites for o in site[m]]) for m in methods}
+        scores = [{m: summarise(site[m])["score"] for m in methods} for site in sites]
+        result[family]["best_sites"] = {m: sum(sc[m] == max(sc.values()) for sc in scores) for m in methods}
+        result[family]["sites"] = len(sites)
     result["all_vertical"] = {
-        m: summarise([beam_outcomes(sim, spec.segmentation.model_copy(update={"method": m}))
-                      for f in pooled for spec, scans in families[f] for sim in scans]) for m in methods}
+        m: summarise([o for f, sites in per_site.items() if f != "bell" for site in sites for o in site[m]])
+        for m in methods}
     return result
 
 
@@ -396,9 +403,12 @@ def print_table(result: dict) -> None:
     cols = ("hit", "one_bin", "before", "behind", "no_wall", "missed", "false", "score")
     print(f"{'family':13s} {'method':7s} {'beams':>6s} " + " ".join(f"{c:>7s}" for c in cols) + "  median|e|")
     for family, methods in result["simulated"].items():
-        for method, s in methods.items():
+        for method in METHODS:
+            s = methods[method]
             print(f"{family:13s} {method:7s} {s['beams']:6d} " + " ".join(f"{s[c]:7.3f}" for c in cols)
                   + f"  {s['median_abs_error_m']}")
+        if "best_sites" in methods:
+            print(f"{family:13s} best score on {methods['best_sites']} of {methods['sites']} sites")
     for name, entry in result["real"].items():
         print(f"real {name} ({entry['sweeps']} sweeps of {entry['beams']} x {entry['bins']}):")
         for method in METHODS:
