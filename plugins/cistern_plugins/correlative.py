@@ -64,7 +64,7 @@ class CorrelativeParams(ConvergenceParams):
                               "Micron-class compass's 2° noise")
     guess_search_deg: float = Field(6.0, ge=0, le=180, description="yaw window around a guess's heading")
     levels: int = Field(5, ge=1, le=8)
-    min_score: float = Field(0.15, ge=0, le=1)
+    min_score: float = Field(0.08, ge=0, le=1)
     ambiguity_ratio: float = Field(0.9, gt=0, le=1)
     ambiguity_distance_m: float = Field(0.5, gt=0)
     valley_ratio: float = Field(0.8, gt=0, le=1)
