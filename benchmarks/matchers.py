@@ -69,6 +69,7 @@ from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.errors import PluginError
 from cistern_archive.evaluation import strict_json, wilson_interval
 from cistern_archive.sonar.scan import RangeScan
+from cistern_plugins.pf_pairwise import PAPER_CONFIGURATION
 from cistern_archive.testing.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import score
 
@@ -218,23 +219,8 @@ def calibrate_response(responses: list[float], false_rate: float) -> float:
 # weight, a uniform start over L_init x L_init (Table II, line 1), every disagreeing beam penalised
 # (eq. 4), the classic beam-cone inverse model for m_i, no verification, no refinement, every beam,
 # the cell size r_c = 0.05 m and the smoothing constants chi_w = 2/7, chi_sigma = 2/5 of Sec. IV.
-PF_PAPER_PARAMS = {
-    "measurement_model": "raycast",
-    "resample_weighting": "shifted",
-    "init_oversample": 1,
-    "unknown_score": -1.0,
-    "map_occupied": "cone",
-    "map_free": "cone",
-    "min_informative": 1.0,
-    "verify": False,
-    "verify_fit": False,
-    "restarts": 0,
-    "refine": "none",
-    "max_beams": 100_000,
-    "cell_m": 0.05,
-    "chi_w": 2.0 / 7.0,
-    "chi_sigma": 2.0 / 5.0,
-}
+PF_PAPER_PARAMS = PAPER_CONFIGURATION
+"""The paper's pf-pairwise (:meth:`cistern_plugins.pf_pairwise.PFParams.paper`)."""
 
 
 def matchers(*, karto_min_response: float | None = None, paper: bool = False,

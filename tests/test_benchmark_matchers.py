@@ -38,6 +38,7 @@ def test_paper_configuration_is_exactly_the_papers():
     chi_sigma = 2/5."""
     plugin = _pf_plugin()
     params = plugin.validate_params(matchers.PF_PAPER_PARAMS)
+    assert params == plugin.params_model.paper()  # the benchmark runs the plugin's own preset
     assert params.measurement_model == "raycast" and params.resample_weighting == "shifted"
     assert params.init_oversample == 1 and params.unknown_score == -1.0
     assert params.map_occupied == "cone" and params.map_free == "cone" and params.min_informative == 1.0
@@ -54,8 +55,8 @@ def test_paper_configuration_includes_every_departure_the_plugin_documents():
     configuration sets each of them the same way (and, beyond that list, turns the refinement off)."""
     import cistern_plugins.pf_pairwise as pf
 
-    text = pf.__doc__.split("the paper's method is", 1)[1].split(". The departures", 1)[0]
-    documented = dict(re.findall(r'(\w+)=("?[\w.-]+"?)', text.replace("\n", " ")))
+    text = " ".join(pf.__doc__.split()).split("the paper's method is", 1)[1].split(". The departures", 1)[0]
+    documented = dict(re.findall(r'(\w+)=("?[\w.-]+"?)', text))
     assert {"measurement_model", "resample_weighting", "verify"} <= set(documented)
     for key, value in documented.items():
         expected = json.loads(value.lower() if value in ("True", "False") else value)

@@ -49,8 +49,10 @@ Decisions where the paper's text is ambiguous
 Defaults and the paper
 ----------------------
 The defaults are the measured best (``benchmarks/RESULTS.md``); the paper's method is
-``measurement_model="raycast", resample_weighting="shifted", init_oversample=1, unknown_score=-1,
-map_occupied="cone", verify=False, verify_fit=False``. The departures:
+:meth:`PFParams.paper` (:data:`PAPER_CONFIGURATION`: ``measurement_model="raycast",
+resample_weighting="shifted", init_oversample=1, unknown_score=-1, map_occupied="cone",
+map_free="cone", verify=False, verify_fit=False, restarts=0, refine="none"``, every beam). The
+departures:
 
 * ``init_oversample`` – the first iteration weighs that many uniform samples per particle and keeps
   ``n_particles`` of them (a coarse search before the fine filter);
@@ -203,6 +205,33 @@ class PFParams(ConvergenceParams):
     refine_max_shift_m: float = Field(
         0.2, gt=0, description="a refinement moving the estimate farther than this is discarded (m)"
     )
+
+    @classmethod
+    def paper(cls, **changes) -> "PFParams":
+        """McVicker et al.'s filter exactly as written (:data:`PAPER_CONFIGURATION`), with ``changes``."""
+        return cls(**{**PAPER_CONFIGURATION, **changes})
+
+
+PAPER_CONFIGURATION = {
+    "measurement_model": "raycast",
+    "resample_weighting": "shifted",
+    "init_oversample": 1,
+    "unknown_score": -1.0,
+    "map_occupied": "cone",
+    "map_free": "cone",
+    "min_informative": 1.0,
+    "verify": False,
+    "verify_fit": False,
+    "restarts": 0,
+    "refine": "none",
+    "max_beams": 100_000,
+    "cell_m": 0.05,
+    "chi_w": 2.0 / 7.0,
+    "chi_sigma": 2.0 / 5.0,
+}
+"""The paper's method (Tables I–II, eqs. 3–6): ray casting, proportional resampling, a uniform start,
+every disagreeing beam penalised, cone walls, every beam, no verification and no refinement. ``tau_pw``
+stays in this plugin's per-beam units (the paper's 6.0 was a sum over its beams)."""
 
 
 @dataclass(frozen=True)
