@@ -77,19 +77,21 @@ def test_a_single_wrong_bridge_loses_to_the_consensus_of_two():
     assert poses.placed.all() and _placed_error(poses).max() < 1e-6
 
 
-def test_tentative_matches_need_another_match_to_corroborate_them():
+def test_tentative_matches_need_a_converged_match_to_corroborate_them():
     loc, p = SiteGraphLocalizer(), SiteGraphParams()
     scans = _scans(3)
     alone = [_match(0, 1), _match(1, 0), _match(1, 2, converged=False, tentative=True)]
     poses = loc.localize(scans, alone, p)
     assert poses.placed.tolist() == [True, True, False]
     assert "s2 → s3: ambiguous" in poses.reasons[2]
-    disagreeing = alone + [_match(2, 1, offset=(1.0, 0.0), converged=False, tentative=True)]
-    assert not loc.localize(scans, disagreeing, p).placed[2]
-    agreeing = alone + [_match(2, 1, converged=False, tentative=True)]
-    poses = loc.localize(scans, agreeing, p)
-    assert poses.placed.all()
-    assert poses.covariance[2, 0, 0] > 5 * poses.covariance[1, 0, 0]  # placed, with its weaker evidence
+    # two tentative matches of one pair that agree vouch for nothing: both may have fallen for one look-alike
+    both_tentative = alone + [_match(2, 1, converged=False, tentative=True)]
+    assert not loc.localize(scans, both_tentative, p).placed[2]
+    corroborated = alone + [_match(0, 2)]  # the triangle s1-s2-s3 closes with converged s1 → s3
+    used = {(e.i, e.j) for e in consistent_edges(scans, corroborated, p).edges}
+    assert (1, 2) in used
+    contradicted = alone + [_match(0, 2, offset=(1.0, 0.0))]
+    assert (1, 2) not in {(e.i, e.j) for e in consistent_edges(scans, contradicted, p).edges}
 
 
 def test_unplaced_reasons_name_stations_not_indices():

@@ -48,7 +48,7 @@ from cistern_plugins.alignment import (
     too_few_points,
     transform,
 )
-from cistern_plugins.verification import judge, match_confidence, weakly_constrained
+from cistern_plugins.verification import judge, match_confidence, tentative_fit
 from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
 
@@ -271,7 +271,7 @@ class CorrelativeMatcher:
             pose = best if refined is None else refined
         quality = model.assess_pair(moving, pose, p.limits())
         fit = judge(quality, p.limits())
-        tentative = (ambiguous and not fit) or (not reason and weakly_constrained(quality, p.limits()))
+        tentative = (ambiguous or not reason) and (not fit or tentative_fit(quality, p.limits()))
         reason = reason or fit
         confidence = match_confidence(quality, p.limits())
         cov = fit_covariance(model, raw, pose, p.inlier_distance_m, quality.rms_m)

@@ -26,10 +26,9 @@ builds a graph over the whole site instead, in three steps.
    disagrees with the merged geometry is rejected, with the distance by which it disagrees. A single
    match may join two groups when nothing contradicts it — a scan is unplaced only when no consistent
    chain of matches reaches it. A *tentative* match (not converged, but refused only for a rival peak
-   or a weak direction, ``MatchResult.tentative``) takes part only when a consistent cycle corroborates
-   it (the reverse match of the pair agreeing with it counts), and with its covariance inflated by
-   ``tentative_variance_factor``: in a plain stretch of gallery, where every match is weak along the
-   axis, this places the scans with the honest, large marginal uncertainty instead of leaving them out.
+   a weak direction or a confidence below the threshold, ``MatchResult.tentative``) takes part only
+   when a consistent cycle with a converged match corroborates it, and with its covariance inflated by
+   ``tentative_variance_factor``, so that converged matches dominate wherever they exist.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
@@ -227,14 +226,14 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     n = len(scans)
     edges, strong = match_edges(scans, matches, p)
     ties = tie_edges(scans, p)
-    support = cycle_support(edges, p)
+    support = cycle_support(edges, strong, p)
     graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
     for t in ties:
         _merge(graph, t.i, t.j, gtsam.Pose2(*t.z))
     pending = [k for k in range(len(edges)) if strong[k] or support[k] > 0]
     for k in range(len(edges)):
         if not (strong[k] or support[k] > 0):
-            graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no other match corroborates it"
+            graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
     while True:
         best = _best_cluster(graph, edges, support, pending, p)
         if best is None:
@@ -254,9 +253,11 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     return graph
 
 
-def cycle_support(edges: Sequence[Edge], p: SiteGraphParams) -> list[int]:
+def cycle_support(edges: Sequence[Edge], strong: Sequence[bool], p: SiteGraphParams) -> list[int]:
     """For every edge, how many consistent cycles it closes: an agreeing reverse match and every
-    consistent triangle of edges (module docstring, step 2)."""
+    consistent triangle of edges (module docstring, step 2). A tentative edge (``strong`` false) counts
+    only the cycles in which another edge is a converged match: tentative matches cannot vouch for each
+    other (two matches of a scan pair that both fell for the same look-alike place agree too)."""
     rel: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k, e in enumerate(edges):
         z = gtsam.Pose2(*e.z)
@@ -266,7 +267,8 @@ def cycle_support(edges: Sequence[Edge], p: SiteGraphParams) -> list[int]:
 
     def credit(cycle: Sequence[int]) -> None:
         for k in cycle:
-            support[k] += 1
+            if strong[k] or any(strong[k2] for k2 in cycle if k2 != k):
+                support[k] += 1
 
     for k, e in enumerate(edges):
         z = gtsam.Pose2(*e.z)

@@ -130,11 +130,21 @@ def judge(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
     return ""
 
 
-def weakly_constrained(quality: AlignmentQuality, limits: ConvergenceThresholds) -> bool:
-    """Whether a fit is refused only by the corridor tests, and passes them when both are relaxed by a
-    factor of two (half ``min_constraint``, twice ``max_weak_std_m``): a tentative estimate (see
-    ``MatchResult.tentative``), good across a gallery and weak along it."""
+TENTATIVE_CONFIDENCE = 0.3
+"""Below the acceptance threshold but at least this confident, a fit is tentative (:func:`tentative_fit`)."""
+
+
+def tentative_fit(quality: AlignmentQuality, limits: ConvergenceThresholds) -> bool:
+    """Whether a refused fit is still worth offering as a *tentative* estimate (``MatchResult.tentative``):
+    it has enough inliers, passes the corridor tests relaxed by a factor of two (half ``min_constraint``,
+    twice ``max_weak_std_m``: good across a gallery, weak along it) and its calibrated confidence,
+    though below the threshold, is at least :data:`TENTATIVE_CONFIDENCE`. A localizer uses it only where
+    a consistent cycle of other matches corroborates it."""
     if not limits.calibrated or not judge(quality, limits):
         return False
     relaxed = replace(limits, min_constraint=limits.min_constraint / 2, max_weak_std_m=2 * limits.max_weak_std_m)
-    return not judge(quality, relaxed)
+    why = judge(quality, relaxed)
+    if not why:
+        return True
+    return why.startswith("calibrated confidence") and \
+        calibration().probability(features(quality, limits)) >= TENTATIVE_CONFIDENCE
