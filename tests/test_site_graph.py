@@ -122,3 +122,15 @@ def test_marginal_covariances_are_positive_definite():
     assert poses.covariance.shape == (4, 3, 3)
     for k in range(1, 4):
         assert np.all(np.linalg.eigvalsh(poses.covariance[k]) > 0)
+
+
+def test_tentative_bridges_agreeing_with_each_other_do_not_join_two_groups():
+    """A look-alike chamber: every scan of group {s3, s4} matches tentatively into the same wrong place
+    of group {s1, s2}; the bridges corroborate each other through the converged s3-s4 pair, but no
+    converged match joins the groups, so s3 and s4 stay unplaced."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    wrong = (13.5, 0.0)
+    ms = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    ms += [_match(i, j, offset=wrong, converged=False, tentative=True) for i in (0, 1) for j in (2, 3)]
+    poses = loc.localize(_scans(4), ms, p)
+    assert poses.placed.tolist() == [True, True, False, False]

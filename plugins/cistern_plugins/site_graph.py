@@ -27,8 +27,9 @@ builds a graph over the whole site instead, in three steps.
    match may join two groups when nothing contradicts it — a scan is unplaced only when no consistent
    chain of matches reaches it. A *tentative* match (not converged, but refused only for a rival peak
    a weak direction or a confidence below the threshold, ``MatchResult.tentative``) takes part only
-   when a consistent cycle with a converged match corroborates it, and with its covariance inflated by
-   ``tentative_variance_factor``, so that converged matches dominate wherever they exist.
+   when a consistent cycle with a converged match corroborates it, never as the only link between two
+   groups (the scans of a look-alike chamber all match into the same wrong place, so such links agree
+   with each other), and with its covariance inflated by ``tentative_variance_factor``.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
@@ -235,7 +236,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         if not (strong[k] or support[k] > 0):
             graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
     while True:
-        best = _best_cluster(graph, edges, support, pending, p)
+        best = _best_cluster(graph, edges, support, strong, pending, p)
         if best is None:
             break
         members, (i, j, z) = best
@@ -245,7 +246,9 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     for k in pending:
         e = edges[k]
         off = _disagreement(graph, e)
-        if off is None or _within(off, p, graph, e):
+        if off is None:
+            graph.rejected[(e.i, e.j)] = "not converged, and no converged match joins its two stations' groups"
+        elif _within(off, p, graph, e):
             graph.edges.append(e)
         else:
             graph.rejected[(e.i, e.j)] = (f"inconsistent with the other matches of the site: {off[0]:.2f} m and "
@@ -304,10 +307,12 @@ def _frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
     return graph.pose[e.i].compose(gtsam.Pose2(*e.z)).compose(graph.pose[e.j].inverse())
 
 
-def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], pending: Sequence[int],
-                  p: SiteGraphParams):
-    """The largest-consensus cluster of pending edges between two groups, as (edge indices, (i, j, z))
-    ready for :func:`_merge`, or ``None`` when no pending edge joins two groups."""
+def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], strong: Sequence[bool],
+                  pending: Sequence[int], p: SiteGraphParams):
+    """The largest-consensus cluster of pending edges between two groups that holds at least one
+    converged match, as (edge indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is
+    none. Tentative matches never join two groups on their own: every scan of a look-alike chamber
+    matches into the same wrong place, so tentative bridges to one group corroborate each other."""
     by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k in pending:
         e = edges[k]
@@ -321,6 +326,8 @@ def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], p
     for (ga, gb), items in sorted(by_pair.items()):
         for k, offset in items:
             members = [k2 for k2, o2 in items if _close(offset.between(o2), p, offset)]
+            if not any(strong[k2] for k2 in members):
+                continue
             score = sum(1 + support[k2] for k2 in members)
             if score > best_score:
                 best_score = score
