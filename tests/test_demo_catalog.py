@@ -80,9 +80,10 @@ def test_pool_is_the_papers_pool():
 
 
 def test_pool_scans_segment_to_the_walls():
-    """The paper's segmentation puts most beams within one bin of the true wall (committed files)."""
+    """The records' segmentation (the shadow rule) puts most beams within one bin of the true wall
+    (committed files)."""
     rec = record("lair-pool")
-    assert rec.segmentation.method == "paper" and rec.segmentation.threshold == 50
+    assert rec.segmentation.method == "shadow" and rec.segmentation.min_range_m == 0.4
     doc = truth("lair-pool")
     ring = np.asarray(doc["levels"][0]["rings"][0])
     from cistern_archive.sonar.geometry import ray_cast
