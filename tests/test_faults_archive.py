@@ -401,3 +401,29 @@ def test_verify_and_ingest_find_the_archive_rebuild_uses(built, tmp_path, monkey
     run = run_cli("ingest", str(catalog / "sites" / "cistern-000.yaml"), "--catalog", str(catalog), cwd=elsewhere)
     assert run.returncode == 0 and "already archived" in run.stdout and str(archive.resolve()) in run.stdout
     assert list(elsewhere.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------ defect 8
+def test_bad_records_fail_alone_and_every_good_site_still_builds(built, tmp_path, guard):
+    catalog, out, archive = built
+    good = (catalog / "sites" / "cistern-000.yaml").read_text()
+    bad = {
+        "nan-depth.yaml": good.replace("id: cistern-000", "id: nan-depth").replace("depth_m: ", "depth_m: .nan #", 1),
+        "deep.yaml": good.replace("id: cistern-000", "id: deep-nesting") + "description: " + "[" * 5000 + "]" * 5000,
+        "newline.yaml": good.replace("id: cistern-000", 'id: "newline-id\\n"'),
+    }
+    for name, text in bad.items():
+        (catalog / "sites" / name).write_text(text)
+    outside = tmp_path / "outside.yaml"
+    outside.write_text(good.replace("id: cistern-000", "id: from-outside"))
+    (catalog / "sites" / "linked.yaml").symlink_to(outside)
+    run = _rebuild_cli(catalog, out)
+    assert run.returncode == 2, run.stdout + run.stderr
+    for name in [*bad, "linked.yaml"]:
+        assert any(line.startswith(f"{catalog / 'sites' / name}:") for line in run.stderr.splitlines()), name
+    assert "0 failed, 2 unchanged" in run.stdout
+    for site in SITES:
+        assert report_is_complete(out / site)
+    assert sorted(p.name for p in out.iterdir() if p.is_dir() and not p.name.startswith(".")) == ["cistern-000",
+                                                                                             "cistern-001", "logs"]
+    assert guard.check() == []
