@@ -114,20 +114,22 @@ def remount(where: Path, mode: str) -> None:
     subprocess.run(["mount", "-o", f"remount,{mode}", str(where)], check=True)
 
 
-def fill(folder: Path) -> Path:
-    """Fill the file system holding ``folder`` until it refuses another byte."""
-    path = folder / ".filler"
-    with open(path, "wb") as handle:
-        with contextlib.suppress(OSError):
+FILLERS = (".filler", ".filler-tail")
+
+
+def fill(folder: Path) -> None:
+    """Fill the file system holding ``folder`` until it refuses another byte (see :func:`free`)."""
+    for name, chunk in zip(FILLERS, (65536, 1)):
+        with contextlib.suppress(OSError), open(folder / name, "wb") as handle:
             while True:
-                handle.write(b"\0" * 65536)
+                handle.write(b"\0" * chunk)
                 handle.flush()
-    with contextlib.suppress(OSError):
-        with open(folder / ".filler-tail", "wb") as tail:
-            while True:
-                tail.write(b"\0")
-                tail.flush()
-    return path
+
+
+def free(folder: Path) -> None:
+    """Undo :func:`fill`."""
+    for name in FILLERS:
+        (folder / name).unlink(missing_ok=True)
 
 
 @pytest.fixture()
