@@ -195,8 +195,11 @@ def _lying_header(shape: tuple[int, ...]) -> bytes:
 
 
 def _peak_kib_of(code: str) -> tuple[subprocess.CompletedProcess, int]:
-    probe = (code + "\nimport resource, sys\n"
-             "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+    """Run ``code`` in a fresh interpreter; its peak resident memory (``VmHWM``: unlike ``ru_maxrss`` it
+    does not include the forking parent's)."""
+    probe = (code + "\nimport re, sys\n"
+             "hwm = re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)\n"
+             "print('PEAK', hwm, file=sys.stderr)\n")
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     peak = int(re.search(r"PEAK (\d+)", run.stderr).group(1))
     return run, peak

@@ -112,15 +112,14 @@ def _recovers(catalog: Path, out: Path, guard, archive: Path | None = None) -> N
 def test_a_worker_dies_when_the_rebuild_process_is_gone(tmp_path):
     code = textwrap.dedent("""
         import os, sys, time, multiprocessing
-        from cistern_archive.service.lock import process_start
         from cistern_archive.service.worker import die_with_parent
-        def child(pid, started):
-            die_with_parent(pid, started)
+        def child(pid):
+            die_with_parent(pid)
             print(os.getpid(), flush=True)
             time.sleep(120)
         if __name__ == "__main__":
             ctx = multiprocessing.get_context("spawn")
-            worker = ctx.Process(target=child, args=(os.getpid(), process_start(os.getpid())))
+            worker = ctx.Process(target=child, args=(os.getpid(),))
             worker.start()
             time.sleep(120)
     """)

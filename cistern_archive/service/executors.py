@@ -53,12 +53,10 @@ class LocalExecutor:
         self._pool: ProcessPoolExecutor | None = None
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        from cistern_archive.service.lock import process_start
         from cistern_archive.service.worker import die_with_parent
 
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context,
-                                         initializer=die_with_parent,
-                                         initargs=(os.getpid(), process_start(os.getpid())))
+                                         initializer=die_with_parent, initargs=(os.getpid(),))
         return self._pool
 
     def run(self, func: Callable[[T], Any], tasks: Sequence[T]) -> Iterator[tuple[T, Any]]:

@@ -142,7 +142,24 @@ def holds_lock(out: Path, run_id: str) -> bool:
         info = _read(fd)
     finally:
         os.close(fd)
-    return info.get("run_id") == run_id and owner_alive(info)
+    return info.get("run_id") == run_id and _running(info)
+
+
+def _running(info: dict[str, Any]) -> bool:
+    """Whether the pid in a lock record runs (a zombie does not). Unlike :func:`owner_alive` this does not
+    compare start times, which move with the wall clock; the run id already names one rebuild."""
+    pid = info.get("pid")
+    if not isinstance(pid, int) or info.get("host") != socket.gethostname():
+        return isinstance(pid, int)
+    return is_running(pid)
+
+
+def is_running(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not exited (a zombie waiting for its parent has)."""
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except (psutil.NoSuchProcess, psutil.AccessDenied):
+        return False
 
 
 def _same_file(fd: int, path: Path) -> bool:

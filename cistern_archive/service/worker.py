@@ -36,7 +36,7 @@ from typing import Any
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
 from cistern_archive.errors import CisternError
-from cistern_archive.service.lock import holds_lock, process_start
+from cistern_archive.service.lock import holds_lock, is_running
 from cistern_archive.service.publish import discard, publish, staging_dir
 from cistern_archive.service.summary import SiteOutcome
 
@@ -64,29 +64,26 @@ def _set_parent_death_signal() -> None:
         pass
 
 
-def _watch_rebuild(pid: int, started: float | None) -> None:
+def _watch_rebuild(pid: int) -> None:
     while True:
         time.sleep(PARENT_POLL_S)
-        now = process_start(pid)
-        if now is None or (started is not None and abs(now - started) > 1.0):
+        if not is_running(pid):
             os.kill(os.getpid(), signal.SIGKILL)
 
 
-def die_with_parent(rebuild_pid: int, rebuild_started: float | None) -> None:
+def die_with_parent(rebuild_pid: int) -> None:
     """Pool initializer: end this worker as soon as the rebuild process ``rebuild_pid`` is gone.
 
     Parameters
     ----------
     rebuild_pid : int
         The process running the rebuild (not necessarily this worker's parent: a fork server may be).
-    rebuild_started : float, optional
-        Its start time (``psutil.Process.create_time``), so that a recycled pid is not mistaken for it.
+        It is polled every :data:`PARENT_POLL_S` seconds; a pid is not reused that fast.
     """
     _set_parent_death_signal()
-    if process_start(rebuild_pid) is None:
+    if not is_running(rebuild_pid):
         os.kill(os.getpid(), signal.SIGKILL)
-    threading.Thread(target=_watch_rebuild, args=(rebuild_pid, rebuild_started), daemon=True,
-                     name="rebuild-watch").start()
+    threading.Thread(target=_watch_rebuild, args=(rebuild_pid,), daemon=True, name="rebuild-watch").start()
 
 
 def check_inputs(task: "SiteTask", loaded) -> None:
