@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from catalog_helpers import RECORD, ring_scan, write_catalog
@@ -75,6 +75,7 @@ def test_thousands_of_nested_brackets_are_refused_with_their_line(tmp_path, open
     ("when: 2012-13-45\n", "bad value"),
     ("x: !!python/object:os.system 1\n", "bad value|could not determine a constructor"),
     ("n: !!int 12abc\n", "bad value"),
+    ("n: !!int ''\n", "bad value"),  # found by the property test below: PyYAML raised IndexError
 ])
 def test_values_yaml_cannot_construct_are_refused_with_their_line(tmp_path, text, words):
     record = write_catalog(tmp_path, RECORD + text)
@@ -155,6 +156,7 @@ YAML_PIECES = ["[", "]", "{", "}", ":", ": ", "- ", "\n", "\n  ", "&a ", "*a", "
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(cuts=st.lists(st.tuples(st.integers(0, len(VALID)), st.integers(0, 8), st.sampled_from(YAML_PIECES)),
                      min_size=1, max_size=6))
+@example(cuts=[(VALID.index("n_particles: 200") + 13, 3, "!!int ")])  # `n_particles: !!int }`
 def test_mutated_records_give_only_catalog_errors_with_file_and_line(tmp_path, cuts):
     text = VALID
     for at, delete, piece in cuts:

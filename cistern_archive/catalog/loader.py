@@ -99,8 +99,9 @@ def _scalar(node: yaml.Node) -> Any:
     loader = yaml.SafeLoader("")
     try:
         return loader.construct_object(node, deep=True)
-    except (yaml.YAMLError, ValueError, TypeError, OverflowError) as exc:
-        problem = getattr(exc, "problem", None) or str(exc)
+    except Exception as exc:  # noqa: BLE001 - PyYAML's constructors fail on odd scalars in many ways
+        # (``!!int ''`` raises IndexError, a bad date ValueError, an unknown tag ConstructorError)
+        problem = getattr(exc, "problem", None) or str(exc) or type(exc).__name__
         raise _Refused(node.start_mark.line + 1, f"bad value {node.value!r}: {problem}"[:300]) from None
     finally:
         loader.dispose()
