@@ -3,15 +3,21 @@ publish atomically, write the index, ``summary.json`` and a run log.
 
 Order of a rebuild of ``OUT``:
 
-1. take ``OUT/.rebuild.lock`` (refused while another rebuild runs; a stale lock is taken over) and
-   clean up after any interrupted rebuild (:func:`~cistern_archive.service.publish.recover`);
+0. refuse a missing or empty catalog folder before anything is written;
+1. take ``OUT/.rebuild.lock`` (refused while another rebuild runs; a stale lock is taken over; it names
+   this run, which workers check before publishing) and clean up after any interrupted rebuild
+   (:func:`~cistern_archive.service.publish.recover`);
 2. validate the catalog; the valid records are built even when others have problems (exit code 2);
-3. ingest every input of every selected site into the archive and compute its build key;
+3. clean the archive's leftovers of dead processes and index objects stored without their index row;
+   ingest every input of every selected site into the archive (re-checking the stored copies it relies
+   on, restoring damaged ones from intact originals; scan files their reader refuses from the headers
+   are not copied) and compute its build key; a site whose inputs cannot be read fails alone, an
+   archive that cannot be written stops the rebuild (:class:`~cistern_archive.errors.EnvironmentProblem`);
 4. skip the sites whose published ``build.json`` has the same key and status ``ok`` (unless ``force``);
 5. run :func:`~cistern_archive.service.worker.run_site` for the others on the chosen executor, in
    completion order, recording ``build`` and ``publish`` events and the published artifacts;
-6. render ``OUT/index.html`` from every published site (kept when nothing was published and the
-   set of sites is unchanged) and write ``OUT/summary.json``.
+6. render ``OUT/index.html`` from every published site (kept when the published reports it shows are
+   exactly those recorded with the previous index in ``summary.json``) and write ``OUT/summary.json``.
 """
 
 from __future__ import annotations
@@ -329,7 +335,10 @@ def rebuild(
     RebuildLocked
         Another rebuild holds ``OUT``.
     CatalogError
-        ``--site`` names no valid record.
+        There is no catalog at ``catalog``, or ``--site`` names no valid record.
+    EnvironmentProblem
+        ``OUT`` or the archive cannot be written (a full or read-only disk) or the archive index is
+        damaged; found while taking the lock or archiving, that is before any site is built.
     KeyboardInterrupt
         Re-raised after writing a summary marked ``interrupted`` (unfinished sites keep their previous
         report).
