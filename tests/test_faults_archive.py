@@ -331,6 +331,23 @@ def test_a_full_disk_in_the_archive_gives_one_line_and_leaves_no_partial_object(
         _all_good(catalog, out, disk / "archive", guard)
 
 
+@needs_mount
+def test_a_full_disk_while_an_object_is_copied_leaves_neither_a_partial_object_nor_an_index_row(tmp_path):
+    from cistern_archive.errors import EnvironmentProblem
+
+    source = tmp_path / "long-recording.bin"
+    source.write_bytes(os.urandom(6_000_000))
+    before = file_sha256(source)
+    disk = tmp_path / "small"
+    with small_disk(disk, "4m"):
+        with Archive(disk / "archive") as store:
+            with pytest.raises(EnvironmentProblem, match=r"cannot write to the archive .*long-recording.bin"):
+                store.ingest(source, site_id="pool")
+            assert list(store.store.tmp.iterdir()) == [] and store.store.iter_digests() == []
+            assert store.index.objects() == [] and store.index.site_inputs("pool") == []
+    assert file_sha256(source) == before
+
+
 # ----------------------------------------------------------------------------------- defect 12
 def test_a_junk_scan_fails_its_site_without_being_archived(built, guard):
     catalog, out, archive = built
