@@ -111,6 +111,9 @@ def test_a_damaged_object_is_restored_by_the_next_rebuild_from_the_intact_origin
         repaired = [json.loads(e["detail"]) for e in store.index.events(type="ingest") if e["sha256"] == digest]
         failures = [e for e in store.index.events(type="fixity") if e["sha256"] == digest and e["outcome"] == "failure"]
     assert any("repaired" in d and d["repaired"].startswith("damaged") for d in repaired) and failures
+    recovered = json.loads((out / "summary.json").read_text())["recovered"]
+    assert any(line.startswith("cistern-000: restored the archived copy of data/cistern-000/s1.npz")
+               for line in recovered), recovered
     _all_good(catalog, out, archive, guard)
 
 

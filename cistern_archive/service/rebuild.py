@@ -67,6 +67,8 @@ class NullProgress:
 class SitePlan:
     loaded: LoadedRecord
     key: BuildKey
+    repairs: tuple[str, ...] = ()
+    """Archived copies of the site's inputs that were damaged or missing and were restored."""
 
     @property
     def site_id(self) -> str:
@@ -106,17 +108,19 @@ def plan_site(loaded: LoadedRecord, archive: Archive, registry: Registry, run_id
     site_id = loaded.record.id
     record_rel = loaded.path.resolve().relative_to(loaded.root).as_posix()
     refused = unreadable_inputs(loaded)
-    archive.ingest(loaded.path, site_id=site_id, role="record", relative_path=record_rel, run_id=run_id)
+    items = [archive.ingest(loaded.path, site_id=site_id, role="record", relative_path=record_rel, run_id=run_id)]
     digests = {}
     for role, relative in site_inputs(loaded):
         if relative in refused:
             digests[relative] = file_sha256(loaded.resolve(relative))[0]
             continue
-        item = archive.ingest(loaded.resolve(relative), site_id=site_id, role=role, relative_path=relative,
-                              run_id=run_id)
-        digests[relative] = item.sha256
+        items.append(archive.ingest(loaded.resolve(relative), site_id=site_id, role=role, relative_path=relative,
+                                    run_id=run_id))
+        digests[relative] = items[-1].sha256
     archive.index.touch_site(site_id, loaded.record.name, record_rel)
-    return SitePlan(loaded=loaded, key=build_key(loaded, digests, registry, report_config))
+    repairs = tuple(f"restored the archived copy of {item.relative_path} ({item.sha256[:12]}), which was "
+                    f"{item.repaired}" for item in items if item.repaired)
+    return SitePlan(loaded=loaded, key=build_key(loaded, digests, registry, report_config), repairs=repairs)
 
 
 def plan_sites(selected: list[LoadedRecord], store: Archive, registry: Registry, run_id: str,
@@ -373,6 +377,9 @@ def rebuild(
             _recover_archive(store, run_id, out, summary, log)
             plans, unplanned = plan_sites(selected, store, registry, run_id, report_config, log)
             summary.sites.extend(unplanned)
+            for repair in (f"{p.site_id}: {r}" for p in plans for r in p.repairs):
+                summary.recovered.append(repair)
+                log.write(f"recovery: {repair}", "WARN")
             todo = [p for p in plans if force or not is_current(out / p.site_id, p.key.key)]
             skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key,
                                    report=f"{p.site_id}/index.html")
