@@ -12,7 +12,7 @@ import sys
 import typer
 
 from cistern_archive.commands import COMMAND_MODULES, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
-from cistern_archive.errors import CisternError
+from cistern_archive.errors import CisternError, EnvironmentProblem, describe_os_error
 
 app = typer.Typer(
     name="cistern-archive",
@@ -62,9 +62,15 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(EXIT_INTERRUPTED)
     except SystemExit:
         raise
+    except EnvironmentProblem as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(EXIT_INTERNAL)
     except CisternError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(EXIT_USAGE)
+    except OSError as exc:  # a full or read-only disk, a vanished folder: the environment, not a bug
+        typer.echo(f"error: {describe_os_error(exc)}", err=True)
+        sys.exit(EXIT_INTERNAL)
     except Exception as exc:  # usage errors of the command-line parser, and anything unexpected
         names = {cls.__name__ for cls in type(exc).__mro__}
         if "Exit" in names:

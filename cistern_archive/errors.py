@@ -46,6 +46,14 @@ class ReaderError(CisternError):
         super().__init__(f"{where}: {message}")
 
 
+class EnvironmentProblem(CisternError):
+    """The machine refused an operation: a full or read-only disk, a damaged archive index.
+
+    Not the input's fault: the command exits 3 with one line naming the file and the problem, and
+    nothing already stored is changed.
+    """
+
+
 class PluginError(CisternError):
     """A plugin cannot be found, loaded, or does not honour its stage's contract."""
 
@@ -68,3 +76,9 @@ class StageError(CisternError):
         self.input = input
         self.message = message
         super().__init__(f"{stage} failed on {input}: {message}")
+
+
+def describe_os_error(exc: OSError) -> str:
+    """``FILE: problem`` for an operating-system error: one line, no traceback."""
+    problem = exc.strerror or str(exc)
+    return f"{exc.filename}: {problem}" if exc.filename is not None else problem

@@ -72,17 +72,50 @@ def _events(archive: Archive, site_id: str, digests: set[str]) -> list[dict[str,
     return sorted(rows, key=lambda r: r["id"])
 
 
+def bag_identifiers(bag: Path) -> list[str]:
+    """The ``External-Identifier`` values of a bag's ``bag-info.txt`` (none when it is not a bag)."""
+    info = bag / "bag-info.txt"
+    if not ((bag / "bagit.txt").is_file() and info.is_file()):
+        return []
+    try:
+        text = info.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return []
+    found = []
+    for line in text.splitlines():
+        label, sep, value = line.partition(":")
+        if sep and label.strip() == "External-Identifier":
+            found.append(value.strip())
+    return found
+
+
+def check_bag_target(bag: Path, site_id: str) -> bool:
+    """Whether ``bag`` is free for this site's bag: absent, an empty folder, or provably this site's bag
+    (a BagIt folder whose only ``External-Identifier`` is exactly ``site_id``); True when it is such a bag.
+
+    Raises
+    ------
+    CisternError
+        Anything else (another site's bag, a folder of other files, a file): it is never replaced.
+    """
+    if not bag.exists() and not bag.is_symlink():
+        return False
+    if bag.is_dir() and not bag.is_symlink():
+        if bag_identifiers(bag) == [site_id]:
+            return True
+        if not any(bag.iterdir()):
+            return False
+    raise CisternError(f"{bag}: exists and is not a bag of site {site_id!r} "
+                       f"(External-Identifier: {', '.join(bag_identifiers(bag)) or 'none'}); "
+                       "it is never replaced; choose an empty or new folder")
+
+
 def _place(staged: Path, bag: Path, site_id: str) -> None:
-    """Move the finished bag into place; an existing bag of the same site is replaced atomically."""
+    """Move the finished bag into place; a previous bag of the same site is replaced atomically."""
     from cistern_archive.service.publish import publish
 
-    if bag.exists():
-        info = bag / "bag-info.txt"
-        same_site = info.is_file() and f"External-Identifier: {site_id}" in info.read_text(encoding="utf-8")
-        if not same_site and any(bag.iterdir()):
-            raise CisternError(f"{bag}: exists and is not a bag of site {site_id!r}; choose an empty or new folder")
-        if not same_site:
-            bag.rmdir()
+    if not check_bag_target(bag, site_id) and bag.is_dir():
+        bag.rmdir()  # an empty folder (check_bag_target refuses any other)
     publish(staged, bag)
 
 
@@ -119,6 +152,7 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     registry = registry or default_registry()
     catalog, out, bag = Path(catalog).resolve(), Path(out).resolve(), Path(bag).resolve()
     loaded = _find_record(catalog, site_id, registry)
+    check_bag_target(bag, site_id)  # refuse before any work; checked again just before the swap
     bag.parent.mkdir(parents=True, exist_ok=True)
     staged = Path(tempfile.mkdtemp(prefix=f".{bag.name}.tmp-", dir=bag.parent))
     try:

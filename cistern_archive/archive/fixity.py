@@ -31,14 +31,15 @@ class FixityReport:
 
     @property
     def ok(self) -> bool:
-        return not [p for p in self.problems if p.kind != "unindexed"]
+        return not self.problems
 
 
 def verify_archive(archive: Archive, *, run_id: str | None = None) -> FixityReport:
     """Recompute every object's SHA-256; record one ``fixity`` event per object.
 
     Objects the index lists but the store lacks are ``missing``; objects on disk the index does not
-    list are reported as ``unindexed`` (a warning: an ingest interrupted between the two writes).
+    list are ``unindexed`` (an ingest interrupted between the two writes, a deleted index): a problem,
+    healed by the next ``rebuild`` or by ``repair``.
     """
     report = FixityReport()
     indexed = {row["sha256"]: row["size"] for row in archive.index.objects()}

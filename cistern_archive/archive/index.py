@@ -14,6 +14,8 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
+from cistern_archive.errors import EnvironmentProblem
+
 EVENT_TYPES = ("ingest", "digest", "build", "publish", "fixity")
 
 SCHEMA = """
@@ -83,6 +85,33 @@ def utc_now() -> str:
     return dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
+class DamagedIndex(EnvironmentProblem):
+    """``index.sqlite`` is not a readable SQLite database (``cistern-archive repair`` replaces it)."""
+
+
+class _GuardedConnection(sqlite3.Connection):
+    """A connection whose database errors (a damaged file, a full or read-only disk) name the index file."""
+
+    path = ""
+
+    def _guard(self, call, *args):
+        try:
+            return call(*args)
+        except (sqlite3.IntegrityError, sqlite3.ProgrammingError):
+            raise
+        except sqlite3.DatabaseError as exc:
+            if "not a database" in str(exc) or "malformed" in str(exc):
+                raise DamagedIndex(f"{self.path}: archive index is damaged: {exc}; "
+                                   "run `cistern-archive repair`") from None
+            raise EnvironmentProblem(f"{self.path}: archive index: {exc}") from None
+
+    def execute(self, *args):  # type: ignore[override]
+        return self._guard(super().execute, *args)
+
+    def executescript(self, *args):  # type: ignore[override]
+        return self._guard(super().executescript, *args)
+
+
 class Index:
     """A connection to ``index.sqlite``; use as a context manager or call :meth:`close`.
 
@@ -94,7 +123,11 @@ class Index:
 
     def __init__(self, path: Path):
         self.path = Path(path)
-        self.db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
+        try:
+            self.db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, factory=_GuardedConnection)
+        except sqlite3.Error as exc:
+            raise EnvironmentProblem(f"{self.path}: cannot open the archive index: {exc}") from None
+        self.db.path = str(self.path)
         self.db.row_factory = sqlite3.Row
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=NORMAL")
@@ -122,6 +155,15 @@ class Index:
 
     def objects(self) -> list[sqlite3.Row]:
         return list(self.db.execute("SELECT sha256, size, stored_at FROM objects ORDER BY sha256"))
+
+    def has_object(self, sha256: str) -> bool:
+        return self.db.execute("SELECT 1 FROM objects WHERE sha256 = ?", (sha256,)).fetchone() is not None
+
+    def sources_of(self, sha256: str) -> list[str]:
+        """Every file path ever ingested with this digest, most recent first (candidates for a repair)."""
+        return [row["source_path"] for row in self.db.execute(
+            "SELECT source_path, MAX(id) AS last FROM inputs WHERE sha256 = ? GROUP BY source_path "
+            "ORDER BY last DESC", (sha256,))]
 
     # --------------------------------------------------------------------------------- sites
     def touch_site(self, site_id: str, name: str = "", record_path: str = "") -> None:
@@ -222,4 +264,7 @@ class _Transaction:
         self.db.execute("BEGIN IMMEDIATE")
 
     def __exit__(self, exc_type: object, *rest: object) -> None:
-        self.db.execute("ROLLBACK" if exc_type is not None else "COMMIT")
+        if exc_type is None:
+            self.db.execute("COMMIT")
+        elif self.db.in_transaction:
+            self.db.execute("ROLLBACK")

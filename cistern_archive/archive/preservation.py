@@ -33,7 +33,7 @@ def write_scans(build: SiteBuild, folder: Path) -> list[Path]:
     rows = []
     for k, scan in enumerate(build.raw_scans):
         ref = build.record.scans[k]
-        name = f"scans/{scan.station or ref.station}.csv"
+        name = f"scans/{ref.station}.csv"  # the record's label: validated to name a file, unique in the site
         bins = scan.intensities.shape[1]
         header = ["bearing_rad"] + [f"bin_{b:04d}" for b in range(bins)]
         table = [[f"{bearing:.6f}", *(int(v) if float(v).is_integer() else float(v) for v in row)]

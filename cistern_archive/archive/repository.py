@@ -4,6 +4,12 @@ Raw inputs are ingested by copy: the archive keeps its own read-only copy of eve
 input and never opens the originals for writing. Digests of unchanged files (same path, size and
 modification time as their last ingest) are taken from the index instead of being recomputed;
 ``verify`` recomputes every stored object's digest.
+
+An ingest always checks the stored object it relies on: a damaged or missing object is restored from
+the file being ingested when that file has the object's digest (a ``fixity`` failure and an ``ingest``
+event with ``"repaired"`` are recorded), and an object found on disk without its index row (a crash
+between the copy and the index commit, a deleted index) is indexed again. Storing an object and
+indexing it are therefore one recoverable step.
 """
 
 from __future__ import annotations
@@ -11,6 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import Index
@@ -55,6 +62,8 @@ class IngestedInput:
     """True when this call added a new object to the store."""
     digested: bool
     """True when the digest was computed (not taken from the index)."""
+    repaired: str | None = None
+    """What was wrong with the stored object when this ingest restored it (``missing``, ``damaged: …``)."""
 
 
 class Archive:
@@ -103,21 +112,37 @@ class Archive:
         info = source.stat()
         relative_path = relative_path or source.name
         cached = self.index.latest_input(str(source))
-        digested = True
-        if (cached is not None and cached["size"] == info.st_size and cached["mtime_ns"] == info.st_mtime_ns
-                and self.store.has(cached["sha256"])):
-            sha256, size, digested = cached["sha256"], cached["size"], False
+        digested = False
+        if cached is not None and cached["size"] == info.st_size and cached["mtime_ns"] == info.st_mtime_ns:
+            sha256, size = cached["sha256"], cached["size"]
         else:
-            sha256, size = file_sha256(source)
-        stored = self.store.put(source, sha256) if not self.store.has(sha256) else None
+            (sha256, size), digested = file_sha256(source), True
+        damage = self.store.damage(sha256)
+        if damage is not None and not digested:  # the cached digest is only trusted with an intact object
+            (sha256, size), digested = file_sha256(source), True
+            damage = self.store.damage(sha256)
+        expected = self.index.has_object(sha256)
+        repaired = damage if damage is not None and (expected or damage != "missing") else None
+        stored = None
+        if damage is not None:
+            stored = self.store.restore(source, sha256) if repaired else self.store.put(source, sha256)
         with self.index.transaction():
             if digested:
                 self.index.add_event("digest", agent=self.agent, outcome="success", run_id=run_id, site_id=site_id,
                                      sha256=sha256, detail={"algorithm": "sha256", "source": str(source)})
-            if stored is not None:
-                self.index.add_object(sha256, stored.size)
+            if repaired:
+                self.index.add_event("fixity", agent=self.agent, outcome="failure", run_id=run_id, site_id=site_id,
+                                     sha256=sha256, detail=repaired)
+            if not expected:
+                self.index.add_object(sha256, size)
+            if stored is not None or not expected:
+                detail: dict[str, Any] = {"source": str(source), "size": size}
+                if repaired:
+                    detail["repaired"] = repaired
+                elif stored is None:
+                    detail["indexed"] = "the object was in the store without its index row"
                 self.index.add_event("ingest", agent=self.agent, outcome="success", run_id=run_id, site_id=site_id,
-                                     sha256=sha256, detail={"source": str(source), "size": stored.size})
+                                     sha256=sha256, detail=detail)
             changed = (cached is None or cached["sha256"] != sha256 or cached["site_id"] != site_id
                        or cached["relative_path"] != relative_path or cached["mtime_ns"] != info.st_mtime_ns)
             if changed:
@@ -127,4 +152,27 @@ class Archive:
                                      relative_path=relative_path, sha256=sha256, size=size,
                                      mtime_ns=info.st_mtime_ns)
         return IngestedInput(source=source, relative_path=relative_path, role=role, sha256=sha256, size=size,
-                             stored=stored is not None and stored.created, digested=digested)
+                             stored=stored is not None and stored.created and not repaired, digested=digested,
+                             repaired=repaired)
+
+    def index_strays(self, *, run_id: str | None = None) -> list[str]:
+        """Index every object found in the store without its index row whose bytes match its digest.
+
+        Returns
+        -------
+        list of str
+            One line per object indexed (damaged strays are left for ``verify`` and ``repair``).
+        """
+        indexed = {row["sha256"] for row in self.index.objects()}
+        healed = []
+        for sha256 in self.store.iter_digests():
+            if sha256 in indexed or self.store.damage(sha256) is not None:
+                continue
+            size = self.store.path_of(sha256).stat().st_size
+            with self.index.transaction():
+                self.index.add_object(sha256, size)
+                self.index.add_event("ingest", agent=self.agent, outcome="success", run_id=run_id, sha256=sha256,
+                                     detail={"size": size, "indexed": "the object was in the store without its "
+                                                                      "index row"})
+            healed.append(f"indexed object {sha256} (in the store without its index row)")
+        return healed

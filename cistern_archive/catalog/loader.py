@@ -2,6 +2,12 @@
 
 YAML is composed into a node tree first, so every value keeps its line; pydantic's error locations are
 then mapped back onto those lines.
+
+Records come from people and field laptops, so the loader bounds what a file may cost before it is
+composed: at most :data:`MAX_RECORD_BYTES`, :data:`MAX_DEPTH` levels of nesting, :data:`MAX_ALIASES`
+aliases and :data:`MAX_NODES` values once aliases are expanded (a few hundred bytes of nested aliases
+would otherwise expand to billions of values). Every refusal is a :class:`CatalogError` with
+``file:line``.
 """
 
 from __future__ import annotations
@@ -18,6 +24,11 @@ from cistern_archive.catalog.models import SiteRecord
 from cistern_archive.errors import CatalogError
 
 RECORD_SUFFIXES = (".yaml", ".yml")
+MAX_RECORD_BYTES = 1 << 20
+"""A site record is a few kilobytes; anything over 1 MiB is refused unread."""
+MAX_DEPTH = 32
+MAX_ALIASES = 100
+MAX_NODES = 100_000
 
 
 @dataclass(frozen=True)
@@ -37,26 +48,85 @@ class LoadedRecord:
         return _nearest_line(self.lines, tuple(loc))
 
 
-def _construct(node: yaml.Node, loc: tuple[Any, ...], lines: dict[tuple[Any, ...], int]) -> Any:
+class _Refused(Exception):
+    """A node of the record that cannot be turned into a value: (line, message)."""
+
+    def __init__(self, line: int, message: str):
+        super().__init__(message)
+        self.line = line
+
+
+class _Budget:
+    """Counts the values constructed so far (aliases expand to copies of their anchor)."""
+
+    def __init__(self) -> None:
+        self.nodes = 0
+
+    def spend(self, node: yaml.Node) -> None:
+        self.nodes += 1
+        if self.nodes > MAX_NODES:
+            raise _Refused(node.start_mark.line + 1, f"more than {MAX_NODES} values once aliases are expanded")
+
+
+def _construct(node: yaml.Node, loc: tuple[Any, ...], lines: dict[tuple[Any, ...], int],
+               budget: _Budget) -> Any:
+    budget.spend(node)
     lines[loc] = node.start_mark.line + 1
     if isinstance(node, yaml.MappingNode):
         out: dict[Any, Any] = {}
         for key_node, value_node in node.value:
-            key = _scalar(key_node)
-            out[key] = _construct(value_node, loc + (key,), lines)
+            key = _key(key_node)
+            out[key] = _construct(value_node, loc + (key,), lines, budget)
             lines[loc + (key,)] = key_node.start_mark.line + 1
         return out
     if isinstance(node, yaml.SequenceNode):
-        return [_construct(item, loc + (k,), lines) for k, item in enumerate(node.value)]
+        return [_construct(item, loc + (k,), lines, budget) for k, item in enumerate(node.value)]
     return _scalar(node)
+
+
+def _key(node: yaml.Node) -> Any:
+    if not isinstance(node, yaml.ScalarNode):
+        raise _Refused(node.start_mark.line + 1, "a mapping key must be a plain value, not a list or mapping")
+    key = _scalar(node)
+    try:
+        hash(key)
+    except TypeError:
+        raise _Refused(node.start_mark.line + 1, f"mapping key {node.value!r} cannot be a key") from None
+    return key
 
 
 def _scalar(node: yaml.Node) -> Any:
     loader = yaml.SafeLoader("")
     try:
         return loader.construct_object(node, deep=True)
+    except Exception as exc:  # noqa: BLE001 - PyYAML's constructors fail on odd scalars in many ways
+        # (``!!int ''`` raises IndexError, a bad date ValueError, an unknown tag ConstructorError)
+        problem = getattr(exc, "problem", None) or str(exc) or type(exc).__name__
+        raise _Refused(node.start_mark.line + 1, f"bad value {node.value!r}: {problem}"[:300]) from None
     finally:
         loader.dispose()
+
+
+def _check_shape(text: str) -> None:
+    """Walk the YAML event stream (no recursion, no expansion) and refuse deep nesting and alias floods.
+
+    Raises
+    ------
+    _Refused
+        At the line of the first event over a limit.
+    """
+    depth = aliases = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise _Refused(event.start_mark.line + 1, f"nested more than {MAX_DEPTH} levels deep")
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+        elif isinstance(event, yaml.AliasEvent):
+            aliases += 1
+            if aliases > MAX_ALIASES:
+                raise _Refused(event.start_mark.line + 1, f"more than {MAX_ALIASES} aliases (*name)")
 
 
 def _nearest_line(lines: dict[tuple[Any, ...], int], loc: tuple[Any, ...]) -> int:
@@ -73,21 +143,39 @@ def parse_yaml(path: Path) -> tuple[Any, dict[tuple[Any, ...], int]]:
     CatalogError
         With ``file:line: yaml: message`` when the YAML is malformed.
     """
+    text = _read_text(path)
+    lines: dict[tuple[Any, ...], int] = {}
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CatalogError([f"{path}:1: (record): cannot be read: {exc}"]) from None
-    try:
+        _check_shape(text)
         node = yaml.compose(text, Loader=yaml.SafeLoader)
+        if node is None:
+            return None, lines
+        return _construct(node, (), lines, _Budget()), lines
+    except _Refused as exc:
+        raise CatalogError([f"{path}:{exc.line}: yaml: {exc}"]) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else 1
         problem = getattr(exc, "problem", None) or str(exc)
         raise CatalogError([f"{path}:{line}: yaml: {problem}"]) from None
-    lines: dict[tuple[Any, ...], int] = {}
-    if node is None:
-        return None, lines
-    return _construct(node, (), lines), lines
+
+
+def _read_text(path: Path) -> str:
+    """The record's text, refusing files over :data:`MAX_RECORD_BYTES` before reading them."""
+    try:
+        with open(path, "rb") as handle:
+            raw = handle.read(MAX_RECORD_BYTES + 1)
+    except OSError as exc:
+        raise CatalogError([f"{path}:1: (record): cannot be read: {exc.strerror or exc}"]) from None
+    if len(raw) > MAX_RECORD_BYTES:
+        raise CatalogError([f"{path}:1: (record): larger than {MAX_RECORD_BYTES} bytes; "
+                            "a site record is a few kilobytes"])
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise CatalogError([f"{path}:{line}: (record): cannot be read: not UTF-8 text: {exc.reason}"]) from None
+    return text
 
 
 def format_loc(loc: Iterable[Any]) -> str:
@@ -113,7 +201,14 @@ def validation_problems(path: Path, error: ValidationError, lines: dict[tuple[An
 
 
 def load_record(path: Path, root: Path) -> LoadedRecord:
-    """Load one site record and validate its schema (not yet its files or plugins)."""
+    """Load one site record and validate its schema (not yet its files or plugins).
+
+    A record that is a symbolic link resolving outside ``root`` is refused: the archive names every
+    input by its path inside the catalog.
+    """
+    if not Path(path).resolve().is_relative_to(Path(root).resolve()):
+        raise CatalogError([f"{path}:1: (record): resolves to {Path(path).resolve()}, outside the catalog root "
+                            f"{Path(root).resolve()} (symbolic link?)"])
     data, lines = parse_yaml(path)
     if not isinstance(data, dict):
         raise CatalogError([f"{path}:1: (record): expected a mapping of fields, got {type(data).__name__}"])

@@ -7,13 +7,18 @@ See the README's "Catalog format" for an annotated example.
 from __future__ import annotations
 
 import datetime as dt
+import math
 import re
 from pathlib import PurePosixPath
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*$")
+SLUG = re.compile(r"[a-z0-9]+(?:-[a-z0-9]+)*")
+"""Site ids (matched whole with ``fullmatch``: a trailing newline is not part of a slug)."""
+STATION = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9._-]{0,62}[A-Za-z0-9])?")
+"""Station labels: they name files (``data/<site>/<station>.seanet``, ``scans/<station>.csv``), so no
+path separators, no leading dot, no white space, at most 64 characters."""
 
 DEFAULT_PLUGINS = {
     "matcher": "correlative",
@@ -24,7 +29,41 @@ DEFAULT_PLUGINS = {
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and inf are refused in every float field: they cannot be hashed into a build key (canonical
+    # JSON) and no measurement of a site is infinite.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def check_slug(value: str) -> str:
+    """Refuse a site id that is not a slug (the whole string: ``fullmatch``)."""
+    if not SLUG.fullmatch(value):
+        raise ValueError(f"id {value!r} must be a slug: lower-case letters, digits and single hyphens")
+    return value
+
+
+def check_station(value: str) -> str:
+    """Refuse a station label that could not safely name a file inside the site's folder."""
+    if not STATION.fullmatch(value):
+        raise ValueError(f"station label {value!r} must be 1-64 letters, digits, '.', '_' or '-', "
+                         "starting and ending with a letter or digit (it names files)")
+    return value
+
+
+def check_json_value(value: Any, where: str = "params") -> Any:
+    """Refuse values that have no exact JSON form (NaN, inf, bytes, dates, non-string keys)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{where}: {value!r} is not a finite number")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise ValueError(f"{where}: key {key!r} is not a string")
+            check_json_value(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for k, item in enumerate(value):
+            check_json_value(item, f"{where}[{k}]")
+    elif not (value is None or isinstance(value, (str, int, float, bool))):
+        raise ValueError(f"{where}: a {type(value).__name__} value has no JSON form")
+    return value
 
 
 def check_relative_path(value: str) -> str:
@@ -98,6 +137,11 @@ class ScanRef(Strict):
     def _relative(cls, value: str) -> str:
         return check_relative_path(value)
 
+    @field_validator("station")
+    @classmethod
+    def _station(cls, value: str) -> str:
+        return check_station(value)
+
 
 class Probe(Strict):
     """How to measure a dimension in the map: from a point inside the site, along a direction, to the
@@ -124,6 +168,11 @@ class ReferenceDimension(Strict):
 class StageChoice(Strict):
     plugin: str
     params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("params")
+    @classmethod
+    def _json_params(cls, value: dict[str, Any]) -> dict[str, Any]:
+        return check_json_value(value)
 
 
 class PipelineSpec(Strict):
@@ -161,9 +210,7 @@ class SiteRecord(Strict):
     @field_validator("id")
     @classmethod
     def _slug(cls, value: str) -> str:
-        if not SLUG.match(value):
-            raise ValueError(f"id {value!r} must be a slug: lower-case letters, digits and single hyphens")
-        return value
+        return check_slug(value)
 
     @field_validator("simulation")
     @classmethod

@@ -15,6 +15,7 @@ COMMAND_MODULES = (
     "simulate",
     "ingest",
     "verify",
+    "repair",
     "export",
     "emulate",
     "acquire",

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
-from cistern_archive.commands import EXIT_OK, EXIT_USAGE
-from cistern_archive.errors import CisternError
+from cistern_archive.commands import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
+from cistern_archive.errors import CisternError, EnvironmentProblem
 
 
 def register(app: typer.Typer) -> None:
@@ -25,6 +25,9 @@ def register(app: typer.Typer) -> None:
 
         try:
             result = export_bag(site, bag, catalog=catalog, out=out, archive=archive)
+        except EnvironmentProblem as exc:  # a full or read-only disk, a damaged archive index
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(EXIT_INTERNAL) from None
         except CisternError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(EXIT_USAGE) from None

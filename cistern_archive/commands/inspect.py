@@ -19,21 +19,27 @@ from cistern_archive.errors import ReaderError
 from cistern_archive.sonar.scan import Scan
 
 
+def _finite(value: float) -> float | None:
+    """``value`` as a float, or None when it is NaN or infinite (JSON has no such numbers)."""
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
 def scan_summary(scan: Scan) -> dict:
-    """The per-scan numbers ``inspect`` reports (JSON-serialisable)."""
+    """The per-scan numbers ``inspect`` reports (JSON-serialisable; unknown values are null)."""
     degrees = np.degrees(scan.bearings_rad)
     return {
         "beams": scan.n_beams,
         "bins": scan.n_bins,
-        "bin_size_m": float(scan.bin_size_m),
-        "start_range_m": float(scan.start_range_m),
-        "max_range_m": float(scan.max_range_m),
-        "bearing_min_deg": float(degrees.min()),
-        "bearing_max_deg": float(degrees.max()),
-        "full_scale": float(scan.full_scale),
-        "timestamp": None if math.isnan(scan.timestamp) else float(scan.timestamp),
-        "yaw_deg": float(math.degrees(scan.yaw_rad)),
-        "depth_m": float(scan.depth_m),
+        "bin_size_m": _finite(scan.bin_size_m),
+        "start_range_m": _finite(scan.start_range_m),
+        "max_range_m": _finite(scan.max_range_m),
+        "bearing_min_deg": _finite(degrees.min()) if degrees.size else None,
+        "bearing_max_deg": _finite(degrees.max()) if degrees.size else None,
+        "full_scale": _finite(scan.full_scale),
+        "timestamp": _finite(scan.timestamp),
+        "yaw_deg": _finite(math.degrees(scan.yaw_rad)),
+        "depth_m": _finite(scan.depth_m),
         "sonar_model": scan.sonar_model,
     }
 
@@ -47,6 +53,10 @@ def inspect_file(path: Path, fmt: str | None = None) -> dict:
             "warnings": list(result.warnings)}
 
 
+def _text(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
 def _print_table(doc: dict) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -56,9 +66,10 @@ def _print_table(doc: dict) -> None:
     for column in ("#", "beams", "bins", "bin size m", "max range m", "bearings deg", "full scale", "time"):
         table.add_column(column, justify="right")
     for i, s in enumerate(doc["scans"]):
-        table.add_row(str(i), str(s["beams"]), str(s["bins"]), f"{s['bin_size_m']:.5f}", f"{s['max_range_m']:.2f}",
-                      f"{s['bearing_min_deg']:.1f} .. {s['bearing_max_deg']:.1f}", f"{s['full_scale']:g}",
-                      "-" if s["timestamp"] is None else f"{s['timestamp']:.3f}")
+        table.add_row(str(i), str(s["beams"]), str(s["bins"]), _text(s["bin_size_m"], ".5f"),
+                      _text(s["max_range_m"], ".2f"),
+                      f"{_text(s['bearing_min_deg'], '.1f')} .. {_text(s['bearing_max_deg'], '.1f')}",
+                      _text(s["full_scale"], "g"), _text(s["timestamp"], ".3f"))
     console.print(table)
     for warning in doc["warnings"]:
         console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True, markup=False, highlight=False)

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import typer
 
-from cistern_archive.commands import EXIT_INTERRUPTED, EXIT_USAGE
-from cistern_archive.errors import CisternError
+from cistern_archive.commands import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
+from cistern_archive.errors import CisternError, EnvironmentProblem
 
 
 class PlainProgress:
@@ -88,6 +88,9 @@ def register(app: typer.Typer) -> None:
         except KeyboardInterrupt:
             typer.echo(f"interrupted; see {out / 'summary.json'}", err=True)
             raise typer.Exit(EXIT_INTERRUPTED) from None
+        except EnvironmentProblem as exc:  # a full or read-only disk, a damaged archive index
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(EXIT_INTERNAL) from None
         except CisternError as exc:  # a locked output folder, an unknown --site, an unreachable scheduler
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(EXIT_USAGE) from None

@@ -34,6 +34,8 @@ class LocalExecutor:
     Numeric libraries are limited to one thread per process (unless the environment already says
     otherwise), so ``N`` workers use ``N`` cores. A worker that dies breaks the pool: the pool is
     restarted and the unfinished sites are resubmitted, each at most :data:`MAX_ATTEMPTS` times.
+    Workers die with the rebuild process however it ends
+    (:func:`~cistern_archive.service.worker.die_with_parent`).
     """
 
     name = "local"
@@ -51,7 +53,10 @@ class LocalExecutor:
         self._pool: ProcessPoolExecutor | None = None
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context)
+        from cistern_archive.service.worker import die_with_parent
+
+        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context,
+                                         initializer=die_with_parent, initargs=(os.getpid(),))
         return self._pool
 
     def run(self, func: Callable[[T], Any], tasks: Sequence[T]) -> Iterator[tuple[T, Any]]:

@@ -3,6 +3,9 @@
 The lock file ``OUT/.rebuild.lock`` holds the owner's pid, host, process start time and command line.
 It is taken with ``flock`` (released by the kernel when the owner dies, however it dies) and checked
 against the recorded pid: a lock file whose owner is no longer running is stale and is taken over.
+The file also names the owner's run id, so a worker can check that its rebuild still holds the lock
+right before it publishes (:func:`holds_lock`): a worker that outlived its rebuild never publishes
+over the next one.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from typing import Any
 
 import psutil
 
-from cistern_archive.errors import CisternError
+from cistern_archive.errors import CisternError, EnvironmentProblem
 
 LOCK_NAME = ".rebuild.lock"
 
@@ -27,7 +30,8 @@ class RebuildLocked(CisternError):
     """Another rebuild is writing the same output folder."""
 
 
-def _process_start(pid: int) -> float | None:
+def process_start(pid: int) -> float | None:
+    """When process ``pid`` started (seconds since the epoch), or None when it is not running."""
     try:
         return psutil.Process(pid).create_time()
     except (psutil.NoSuchProcess, psutil.AccessDenied):
@@ -39,7 +43,7 @@ def owner_alive(info: dict[str, Any]) -> bool:
     pid = info.get("pid")
     if not isinstance(pid, int) or info.get("host") != socket.gethostname():
         return isinstance(pid, int)  # another host's lock: assume alive, it cannot be checked from here
-    started = _process_start(pid)
+    started = process_start(pid)
     if started is None:
         return False
     recorded = info.get("process_start")
@@ -65,12 +69,19 @@ class RebuildLock:
         On entry, when a live process holds the lock; the message names it.
     """
 
-    def __init__(self, out: Path):
+    def __init__(self, out: Path, run_id: str | None = None):
         self.path = Path(out) / LOCK_NAME
+        self.run_id = run_id
         self.stale: dict[str, Any] | None = None
         self._fd: int | None = None
 
     def __enter__(self) -> "RebuildLock":
+        try:
+            return self._take()
+        except OSError as exc:  # a read-only or full disk: one line naming the lock file
+            raise EnvironmentProblem(f"{self.path}: cannot take the rebuild lock: {exc.strerror or exc}") from None
+
+    def _take(self) -> "RebuildLock":
         self.path.parent.mkdir(parents=True, exist_ok=True)
         for _ in range(10):
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -91,14 +102,19 @@ class RebuildLock:
                 os.close(fd)
                 raise RebuildLocked(self._refusal(previous))
             self.stale = previous
+        try:
+            _write(fd, {
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "process_start": process_start(os.getpid()),
+                "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "command": " ".join(sys.argv),
+                "run_id": self.run_id,
+            })
+        except OSError:
+            os.close(fd)  # the flock goes with it; a later rebuild finds an empty or stale file
+            raise
         self._fd = fd
-        _write(fd, {
-            "pid": os.getpid(),
-            "host": socket.gethostname(),
-            "process_start": _process_start(os.getpid()),
-            "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "command": " ".join(sys.argv),
-        })
         return self
 
     def _refusal(self, info: dict[str, Any]) -> str:
@@ -114,6 +130,36 @@ class RebuildLock:
         finally:
             os.close(self._fd)
             self._fd = None
+
+
+def holds_lock(out: Path, run_id: str) -> bool:
+    """Whether the rebuild ``run_id`` still holds ``OUT/.rebuild.lock`` (its owner alive, its run id)."""
+    try:
+        fd = os.open(Path(out) / LOCK_NAME, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        info = _read(fd)
+    finally:
+        os.close(fd)
+    return info.get("run_id") == run_id and _running(info)
+
+
+def _running(info: dict[str, Any]) -> bool:
+    """Whether the pid in a lock record runs (a zombie does not). Unlike :func:`owner_alive` this does not
+    compare start times, which move with the wall clock; the run id already names one rebuild."""
+    pid = info.get("pid")
+    if not isinstance(pid, int) or info.get("host") != socket.gethostname():
+        return isinstance(pid, int)
+    return is_running(pid)
+
+
+def is_running(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not exited (a zombie waiting for its parent has)."""
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except (psutil.NoSuchProcess, psutil.AccessDenied):
+        return False
 
 
 def _same_file(fd: int, path: Path) -> bool:

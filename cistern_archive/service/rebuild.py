@@ -3,15 +3,21 @@ publish atomically, write the index, ``summary.json`` and a run log.
 
 Order of a rebuild of ``OUT``:
 
-1. take ``OUT/.rebuild.lock`` (refused while another rebuild runs; a stale lock is taken over) and
-   clean up after any interrupted rebuild (:func:`~cistern_archive.service.publish.recover`);
+0. refuse a missing or empty catalog folder before anything is written;
+1. take ``OUT/.rebuild.lock`` (refused while another rebuild runs; a stale lock is taken over; it names
+   this run, which workers check before publishing) and clean up after any interrupted rebuild
+   (:func:`~cistern_archive.service.publish.recover`);
 2. validate the catalog; the valid records are built even when others have problems (exit code 2);
-3. ingest every input of every selected site into the archive and compute its build key;
+3. clean the archive's leftovers of dead processes and index objects stored without their index row;
+   ingest every input of every selected site into the archive (re-checking the stored copies it relies
+   on, restoring damaged ones from intact originals; scan files their reader refuses from the headers
+   are not copied) and compute its build key; a site whose inputs cannot be read fails alone, an
+   archive that cannot be written stops the rebuild (:class:`~cistern_archive.errors.EnvironmentProblem`);
 4. skip the sites whose published ``build.json`` has the same key and status ``ok`` (unless ``force``);
 5. run :func:`~cistern_archive.service.worker.run_site` for the others on the chosen executor, in
    completion order, recording ``build`` and ``publish`` events and the published artifacts;
-6. render ``OUT/index.html`` from every published site (kept when nothing was published and the
-   set of sites is unchanged) and write ``OUT/summary.json``.
+6. render ``OUT/index.html`` from every published site (kept when the published reports it shows are
+   exactly those recorded with the previous index in ``summary.json``) and write ``OUT/summary.json``.
 """
 
 from __future__ import annotations
@@ -22,10 +28,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
 from cistern_archive.archive.repository import Archive, default_archive_dir
-from cistern_archive.catalog.loader import LoadedRecord
-from cistern_archive.errors import CatalogError
+from cistern_archive.catalog.loader import LoadedRecord, record_paths
+from cistern_archive.errors import CatalogError, CisternError, EnvironmentProblem
 from cistern_archive.pipeline.registry import Registry, default_registry
 from cistern_archive.service.buildkey import BuildKey, build_key, code_version
 from cistern_archive.service.executors import choose_executor
@@ -60,6 +67,8 @@ class NullProgress:
 class SitePlan:
     loaded: LoadedRecord
     key: BuildKey
+    repairs: tuple[str, ...] = ()
+    """Archived copies of the site's inputs that were damaged or missing and were restored."""
 
     @property
     def site_id(self) -> str:
@@ -75,19 +84,68 @@ def site_inputs(loaded: LoadedRecord) -> list[tuple[str, str]]:
     return sorted(set(items), key=lambda item: item[1])
 
 
+def unreadable_inputs(loaded: LoadedRecord) -> set[str]:
+    """The record's scan files that are plainly not of their format, judged from their headers only.
+
+    They are not copied into the archive (a junk file of any size would otherwise be kept for ever);
+    the site's build then fails at its ``load`` stage naming the file and the problem.
+    """
+    from cistern_archive.errors import ReaderError
+    from cistern_archive.sonar.readers import check_file
+
+    refused = set()
+    for scan in loaded.record.scans:
+        try:
+            check_file(loaded.resolve(scan.file), scan.format)
+        except ReaderError:
+            refused.add(scan.file)
+    return refused
+
+
 def plan_site(loaded: LoadedRecord, archive: Archive, registry: Registry, run_id: str | None,
               report_config: dict[str, Any] | None = None) -> SitePlan:
     """Archive the site's record and inputs (copies only new content) and compute its build key."""
     site_id = loaded.record.id
     record_rel = loaded.path.resolve().relative_to(loaded.root).as_posix()
-    archive.ingest(loaded.path, site_id=site_id, role="record", relative_path=record_rel, run_id=run_id)
+    refused = unreadable_inputs(loaded)
+    items = [archive.ingest(loaded.path, site_id=site_id, role="record", relative_path=record_rel, run_id=run_id)]
     digests = {}
     for role, relative in site_inputs(loaded):
-        item = archive.ingest(loaded.resolve(relative), site_id=site_id, role=role, relative_path=relative,
-                              run_id=run_id)
-        digests[relative] = item.sha256
+        if relative in refused:
+            digests[relative] = file_sha256(loaded.resolve(relative))[0]
+            continue
+        items.append(archive.ingest(loaded.resolve(relative), site_id=site_id, role=role, relative_path=relative,
+                                    run_id=run_id))
+        digests[relative] = items[-1].sha256
     archive.index.touch_site(site_id, loaded.record.name, record_rel)
-    return SitePlan(loaded=loaded, key=build_key(loaded, digests, registry, report_config))
+    repairs = tuple(f"restored the archived copy of {item.relative_path} ({item.sha256[:12]}), which was "
+                    f"{item.repaired}" for item in items if item.repaired)
+    return SitePlan(loaded=loaded, key=build_key(loaded, digests, registry, report_config), repairs=repairs)
+
+
+def plan_sites(selected: list[LoadedRecord], store: Archive, registry: Registry, run_id: str,
+               report_config: dict[str, Any] | None, log: RunLog) -> tuple[list[SitePlan], list[SiteOutcome]]:
+    """Plan every selected site; a site whose inputs cannot be read or archived fails alone.
+
+    Raises
+    ------
+    EnvironmentProblem
+        The archive itself cannot be written (a full or read-only disk): no site can be planned.
+    """
+    plans, failed = [], []
+    for loaded in selected:
+        try:
+            plans.append(plan_site(loaded, store, registry, run_id, report_config))
+        except EnvironmentProblem:
+            raise
+        except (CisternError, OSError, ValueError) as exc:
+            message = str(exc) if isinstance(exc, CisternError) else f"{type(exc).__name__}: {exc}"
+            outcome = SiteOutcome(id=loaded.record.id, status="failed", build_key="",
+                                  error=f"archiving its inputs: {message}")
+            failed.append(outcome)
+            _record_outcome(store, run_id, outcome, Path("."))
+            _log_outcome(log, outcome)
+    return plans, failed
 
 
 def published_build(site_dir: Path) -> dict[str, Any] | None:
@@ -166,16 +224,31 @@ def published_sites(out: Path, site_ids: list[str]) -> list[str]:
     return sorted(site_id for site_id in site_ids if (out / site_id / "result.json").is_file())
 
 
-def index_is_current(out: Path, sites: list[str], summary: RebuildSummary) -> bool:
-    """Whether ``OUT/index.html`` already shows exactly these published reports: nothing was published in
-    this run and the previous rebuild's index listed the same sites with the same code version."""
-    if any(site.status != "skipped" for site in summary.sites) or not (out / "index.html").is_file():
+def index_key(out: Path, sites: list[str], code: str) -> str:
+    """A digest of what ``OUT/index.html`` shows: the code version and, per published site, its
+    ``build.json`` (build key, run, build time, status)."""
+    import hashlib
+
+    from cistern_archive.service.buildkey import canonical_json
+
+    shown = []
+    for site_id in sites:
+        info = published_build(out / site_id) or {}
+        shown.append([site_id, *(info.get(k) for k in ("build_key", "run_id", "built_at", "status"))])
+    return hashlib.sha256(canonical_json({"code_version": code, "sites": shown}).encode("utf-8")).hexdigest()
+
+
+def index_is_current(out: Path, key: str) -> bool:
+    """Whether ``OUT/index.html`` was rendered from exactly the published reports ``key`` describes
+    (recorded in the previous ``summary.json``; a crash between a publish and the index write leaves an
+    older key there, so the index is rendered again)."""
+    if not (out / "index.html").is_file():
         return False
     try:
         previous = json.loads((out / SUMMARY_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
-    return previous.get("index_sites") == sites and previous.get("code_version") == summary.code_version
+    return isinstance(previous, dict) and previous.get("index_key") == key
 
 
 def index_entries(out: Path, site_ids: list[str]):
@@ -266,7 +339,10 @@ def rebuild(
     RebuildLocked
         Another rebuild holds ``OUT``.
     CatalogError
-        ``--site`` names no valid record.
+        There is no catalog at ``catalog``, or ``--site`` names no valid record.
+    EnvironmentProblem
+        ``OUT`` or the archive cannot be written (a full or read-only disk) or the archive index is
+        damaged; found while taking the lock or archiving, that is before any site is built.
     KeyboardInterrupt
         Re-raised after writing a summary marked ``interrupted`` (unfinished sites keep their previous
         report).
@@ -275,11 +351,12 @@ def rebuild(
 
     started = time.perf_counter()
     catalog, out = Path(catalog).resolve(), Path(out).resolve()
+    require_catalog(catalog)
     archive_dir = Path(archive).resolve() if archive is not None else default_archive_dir(catalog)
     progress = progress or NullProgress()
     registry = registry or default_registry()
     run_id = new_run_id()
-    with RebuildLock(out) as lock, RunLog(out / LOG_DIR / f"{run_id}.log") as log:
+    with RebuildLock(out, run_id) as lock, RunLog(out / LOG_DIR / f"{run_id}.log") as log:
         summary = RebuildSummary(run_id=run_id, started_at=utc_now(), catalog=str(catalog), out=str(out),
                                  archive=str(archive_dir), executor="local", workers=workers, force=force,
                                  code_version=code_version(), stale_lock=lock.stale,
@@ -297,13 +374,12 @@ def rebuild(
             log.write(problem, "ERROR")
         selected = select_sites(report.records, sites, report.problems)
         with Archive(archive_dir) as store:
-            store.store.clean_tmp()
-            store.index.start_run(run_id, catalog=str(catalog), out=str(out), executor="pending", agent=store.agent)
-            abandoned = store.index.abandon_runs(str(out), keep=run_id)
-            if abandoned:
-                summary.recovered.append(f"marked {abandoned} unfinished earlier run(s) as abandoned")
-                log.write(f"recovery: {abandoned} earlier run(s) into {out} never finished", "WARN")
-            plans = [plan_site(loaded, store, registry, run_id, report_config) for loaded in selected]
+            _recover_archive(store, run_id, out, summary, log)
+            plans, unplanned = plan_sites(selected, store, registry, run_id, report_config, log)
+            summary.sites.extend(unplanned)
+            for repair in (f"{p.site_id}: {r}" for p in plans for r in p.repairs):
+                summary.recovered.append(repair)
+                log.write(f"recovery: {repair}", "WARN")
             todo = [p for p in plans if force or not is_current(out / p.site_id, p.key.key)]
             skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key,
                                    report=f"{p.site_id}/index.html")
@@ -316,7 +392,8 @@ def rebuild(
                      report_config=report_config)
             summary.sites.sort(key=lambda s: s.id)
             summary.index_sites = published_sites(out, [loaded.record.id for loaded in report.records])
-            if index_is_current(out, summary.index_sites, summary):
+            summary.index_key = index_key(out, summary.index_sites, summary.code_version)
+            if index_is_current(out, summary.index_key):
                 log.write("index unchanged")
             else:
                 write_index(out, summary.index_sites)
@@ -332,6 +409,35 @@ def rebuild(
     if summary.interrupted:
         raise KeyboardInterrupt
     return summary
+
+
+def require_catalog(catalog: Path) -> None:
+    """Refuse, before anything is written, a catalog folder that is missing or holds no site records.
+
+    Raises
+    ------
+    CatalogError
+        Naming the folder.
+    """
+    if not catalog.is_dir():
+        raise CatalogError([f"{catalog}:1: (catalog): not a directory; give the catalog with --catalog"])
+    if not record_paths(catalog):
+        raise CatalogError([f"{catalog}:1: (catalog): no site records (*.yaml here or in sites/); "
+                            "give the catalog with --catalog"])
+
+
+def _recover_archive(store: Archive, run_id: str, out: Path, summary: RebuildSummary, log: RunLog) -> None:
+    """Clean up after interrupted rebuilds sharing the archive: temporary objects of dead processes,
+    objects stored without their index row, runs into ``out`` that never finished."""
+    store.store.clean_tmp()
+    healed = store.index_strays(run_id=run_id)
+    store.index.start_run(run_id, catalog=summary.catalog, out=str(out), executor="pending", agent=store.agent)
+    abandoned = store.index.abandon_runs(str(out), keep=run_id)
+    if abandoned:
+        healed.append(f"marked {abandoned} unfinished earlier run(s) as abandoned")
+    for action in healed:
+        log.write(f"recovery: {action}", "WARN")
+    summary.recovered.extend(healed)
 
 
 def _fail_unfinished(tasks: list[SiteTask], done: set[str], summary: RebuildSummary, error: str) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Literal
 
@@ -50,6 +51,7 @@ class RebuildSummary(BaseModel):
     catalog_problems: list[str] = Field(default_factory=list)
     recovered: list[str] = Field(default_factory=list, description="clean-up after an interrupted rebuild")
     index_sites: list[str] = Field(default_factory=list, description="the sites OUT/index.html lists")
+    index_key: str | None = Field(default=None, description="digest of the published reports the index shows")
     stale_lock: dict | None = None
     interrupted: bool = False
     log: str = ""
@@ -76,4 +78,5 @@ class RebuildSummary(BaseModel):
         from cistern_archive.pipeline.runner import write_json_atomic
 
         write_json_atomic(self.model_dump(mode="json"), path)
+        os.chmod(path, 0o644)  # published beside the reports, readable like them
         return path

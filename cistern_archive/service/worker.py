@@ -4,13 +4,29 @@
 sibling of the site folder and publishes it with an atomic swap; any error (a full disk, a renderer
 crash) discards the temporary folder and leaves the previously published report in place. A stage
 failure is not an error here: the pipeline returns a failed result, whose report is published.
+
+Two guards keep a worker from outliving or overtaking its rebuild:
+
+- a local worker dies with the rebuild (:func:`die_with_parent`, the pool's initializer): the kernel
+  sends it SIGKILL when its parent process exits (``prctl(PR_SET_PDEATHSIG)`` on Linux), and a thread
+  polls the rebuild's pid in case the parent was only an intermediary (the fork server);
+- right before the rename that publishes a site the worker checks that its rebuild still holds
+  ``OUT/.rebuild.lock`` (:func:`~cistern_archive.service.lock.holds_lock`); otherwise the site fails
+  and nothing is published.
+
+The inputs the build reads are checked against the digests its build key was computed from, so a file
+that changed (or decayed) after it was archived fails its site instead of being built silently.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
 import resource
+import signal
 import socket
+import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -19,10 +35,74 @@ from typing import Any
 
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
+from cistern_archive.errors import CisternError
+from cistern_archive.service.lock import holds_lock, is_running
 from cistern_archive.service.publish import discard, publish, staging_dir
 from cistern_archive.service.summary import SiteOutcome
 
 BUILD_INFO = "build.json"
+PR_SET_PDEATHSIG = 1
+PARENT_POLL_S = 0.5
+
+
+class LostLock(CisternError):
+    """The rebuild this worker builds for no longer holds the output folder's lock."""
+
+
+class InputChanged(CisternError):
+    """A file the site reads is not the one its build key (and the archive) recorded."""
+
+
+def _set_parent_death_signal() -> None:
+    """Ask the kernel for SIGKILL when the parent process exits (Linux; a no-op elsewhere)."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return
+    try:
+        ctypes.CDLL(name, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def _watch_rebuild(pid: int) -> None:
+    while True:
+        time.sleep(PARENT_POLL_S)
+        if not is_running(pid):
+            os.kill(os.getpid(), signal.SIGKILL)
+
+
+def die_with_parent(rebuild_pid: int) -> None:
+    """Pool initializer: end this worker as soon as the rebuild process ``rebuild_pid`` is gone.
+
+    Parameters
+    ----------
+    rebuild_pid : int
+        The process running the rebuild (not necessarily this worker's parent: a fork server may be).
+        It is polled every :data:`PARENT_POLL_S` seconds; a pid is not reused that fast.
+    """
+    _set_parent_death_signal()
+    if not is_running(rebuild_pid):
+        os.kill(os.getpid(), signal.SIGKILL)
+    threading.Thread(target=_watch_rebuild, args=(rebuild_pid,), daemon=True, name="rebuild-watch").start()
+
+
+def check_inputs(task: "SiteTask", loaded) -> None:
+    """Refuse to build when the record or an input differs from what the build key was computed from.
+
+    Raises
+    ------
+    InputChanged
+        Naming the file and both digests.
+    """
+    record = task.key_material.get("record")
+    if record is not None and loaded.record.model_dump(mode="json") != record:
+        raise InputChanged(f"{task.record_path}: the record changed after it was archived; rebuild again")
+    for relative, expected in (task.key_material.get("inputs") or {}).items():
+        path = Path(task.catalog_root) / relative
+        actual = file_sha256(path)[0]
+        if actual != expected:
+            raise InputChanged(f"{path}: sha256 is {actual}, but {expected} was archived for this build; "
+                               "the file changed or is damaged")
 
 
 @dataclass(frozen=True)
@@ -83,6 +163,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
     try:
         staged = staging_dir(out, task.site_id)
         loaded = load_record(Path(task.record_path), Path(task.catalog_root))
+        check_inputs(task, loaded)
         build = build_site(loaded)
         timings.update(build.result.timings_s)
         tick = time.perf_counter()
@@ -95,6 +176,8 @@ def run_site(task: SiteTask) -> SiteOutcome:
                            "key_material": task.key_material},
                           staged / BUILD_INFO)
         tick = time.perf_counter()
+        if not holds_lock(out, task.run_id):
+            raise LostLock(f"{out}: rebuild {task.run_id} no longer holds the lock; {task.site_id} not published")
         publish(staged, out / task.site_id)
         staged = None
         timings["publish"] = round(time.perf_counter() - tick, 6)

@@ -16,6 +16,11 @@ name                dtype / shape             meaning
 ``repr`` precision, so a round trip is exact. Files are zip-deflated like ``np.savez_compressed`` output,
 but with fixed member timestamps so equal scans give equal bytes; they are written to a temporary
 sibling and renamed into place.
+
+Reading checks a file from its headers before anything is decompressed or allocated
+(:func:`check_npz`): each member's declared size in the zip directory and the shape and dtype in its
+``.npy`` header must agree and stay within :data:`MAX_ARRAY_BYTES` (a 2 MB zip can declare gigabytes
+of zeros). Metadata numbers must be finite and a scan must have at least one beam and one bin.
 """
 
 from __future__ import annotations
@@ -35,6 +40,11 @@ from cistern_archive.sonar.scan import Scan
 
 SCHEMA = "cistern-archive/scan"
 SCHEMA_VERSION = 1
+MAX_ARRAY_BYTES = 256 << 20
+"""Largest array a scan may hold (a 360° Micron scan is well under 1 MiB)."""
+MAX_METADATA_BYTES = 1 << 20
+NUMERIC_METADATA = ("full_scale", "bin_size_m", "start_range_m", "yaw_rad", "depth_m", "beam_width_rad")
+MEMBERS = ("bearings_rad", "intensities", "metadata")
 
 
 def scan_metadata(scan: Scan) -> dict:
@@ -90,6 +100,77 @@ def _write_npz_deterministic(handle, arrays: dict[str, np.ndarray]) -> None:
             archive.writestr(info, buffer.getvalue())
 
 
+def _npy_header(archive: zipfile.ZipFile, name: str, path: Path) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype of one member, from its ``.npy`` header, checked against the zip's declared size."""
+    info = archive.getinfo(f"{name}.npy")
+    if info.file_size > MAX_ARRAY_BYTES + 65536:
+        raise ReaderError(str(path), f"{name}.npy declares {info.file_size} bytes uncompressed; a scan's arrays "
+                                     f"are at most {MAX_ARRAY_BYTES} bytes")
+    with archive.open(info) as member:
+        try:
+            version = np.lib.format.read_magic(member)
+            reader = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = reader(member)
+        except (ValueError, TypeError, SyntaxError, EOFError) as exc:
+            raise ReaderError(str(path), f"{name}.npy: bad .npy header: {exc}") from None
+        header_bytes = member.tell()
+    if dtype.hasobject:
+        raise ReaderError(str(path), f"{name}.npy holds Python objects; only numeric arrays are read")
+    nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if nbytes > MAX_ARRAY_BYTES:
+        raise ReaderError(str(path), f"{name}.npy header claims shape {shape} of {dtype} ({nbytes} bytes); a "
+                                     f"scan's arrays are at most {MAX_ARRAY_BYTES} bytes")
+    if header_bytes + nbytes != info.file_size:
+        raise ReaderError(str(path), f"{name}.npy header claims shape {shape} of {dtype} ({nbytes} bytes) but "
+                                     f"the member holds {info.file_size - header_bytes} bytes of data")
+    return shape, dtype
+
+
+def check_npz(path: str | os.PathLike) -> None:
+    """Check an interchange file from its zip directory and ``.npy`` headers only (nothing is decompressed
+    beyond the headers, nothing large is allocated).
+
+    Raises
+    ------
+    ReaderError
+        A missing member, a malformed or oversized header, shapes that do not fit together, no beams.
+    """
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            missing = [m for m in MEMBERS if f"{m}.npy" not in names]
+            if missing:
+                raise ReaderError(str(path), f"not a cistern-archive scan: missing arrays {missing}")
+            shapes = {m: _npy_header(archive, m, path) for m in MEMBERS}
+    except (OSError, zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as exc:
+        raise ReaderError(str(path), f"unreadable .npz: {type(exc).__name__}: {exc}") from None
+    (bearings, _), (intensities, dtype), (metadata, meta_dtype) = (shapes[m] for m in MEMBERS)
+    if len(bearings) != 1 or len(intensities) != 2 or intensities[0] != bearings[0]:
+        raise ReaderError(str(path), f"bearings_rad {bearings} and intensities {intensities} must be (A,) and "
+                                     "(A, B)")
+    if bearings[0] == 0 or intensities[1] == 0:
+        raise ReaderError(str(path), f"the scan has no data: {bearings[0]} beams of {intensities[1]} bins")
+    if dtype.kind not in "uif":
+        raise ReaderError(str(path), f"intensities have dtype {dtype}; expected integers or floats")
+    if len(metadata) != 1 or meta_dtype != np.uint8 or metadata[0] > MAX_METADATA_BYTES:
+        raise ReaderError(str(path), f"metadata must be at most {MAX_METADATA_BYTES} uint8 bytes, got shape "
+                                     f"{metadata} of {meta_dtype}")
+
+
+def _check_metadata_numbers(meta: dict, path: Path) -> None:
+    for key in NUMERIC_METADATA:
+        value = meta.get(key)
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ReaderError(str(path), f"metadata {key} is {value!r}; expected a finite number")
+    timestamp = meta.get("timestamp")
+    if timestamp is not None and (isinstance(timestamp, bool) or not isinstance(timestamp, (int, float))
+                                  or not math.isfinite(timestamp)):
+        raise ReaderError(str(path), f"metadata timestamp is {timestamp!r}; expected Unix seconds or null")
+
+
 def read_scan(path: str | os.PathLike) -> Scan:
     """Read a scan written by :func:`write_scan`.
 
@@ -99,6 +180,7 @@ def read_scan(path: str | os.PathLike) -> Scan:
         Naming the file and what is missing or wrong.
     """
     path = Path(path)
+    check_npz(path)
     try:
         with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as data:
             missing = {"bearings_rad", "intensities", "metadata"} - set(data.files)
@@ -113,12 +195,15 @@ def read_scan(path: str | os.PathLike) -> Scan:
         meta = json.loads(meta_bytes.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ReaderError(str(path), f"metadata is not UTF-8 JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise ReaderError(str(path), f"metadata is a JSON {type(meta).__name__}, expected an object")
     if meta.get("schema") != SCHEMA:
         raise ReaderError(str(path), f"metadata schema is {meta.get('schema')!r}, expected {SCHEMA!r}")
     if meta.get("schema_version") != SCHEMA_VERSION:
         raise ReaderError(str(path), f"unsupported schema_version {meta.get('schema_version')!r}")
     if not np.all(np.isfinite(bearings)):
         raise ReaderError(str(path), "bearings_rad contains NaN or infinite values")
+    _check_metadata_numbers(meta, path)
     timestamp = meta.get("timestamp")
     try:
         return Scan(

@@ -27,7 +27,7 @@ from pathlib import Path
 import yaml
 
 from cistern_archive.catalog.loader import LoadedRecord, load_record, record_paths
-from cistern_archive.catalog.models import SiteRecord
+from cistern_archive.catalog.models import SiteRecord, check_station
 from cistern_archive.errors import CatalogError, CisternError
 from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.sonar.scan import yaw_from_compass_deg
@@ -112,6 +112,21 @@ class AcquisitionResult:
     @property
     def partial(self) -> bool:
         return not self.capture.complete
+
+
+def check_new_station(station: str, loaded: LoadedRecord) -> None:
+    """Refuse a station label that cannot name the capture's files inside ``data/<site>/``.
+
+    Raises
+    ------
+    CatalogError
+        Before anything is written, naming the label (``../../x``, ``/abs/path``, ``.hidden``, ...).
+    """
+    for label in (station, station + PARTIAL_SUFFIX):
+        try:
+            check_station(label)
+        except ValueError as exc:
+            raise CatalogError([f"{loaded.path}: --station: {exc}"]) from None
 
 
 def find_site(catalog: Path, site_id: str) -> LoadedRecord:
@@ -274,6 +289,7 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
     """
     root = Path(catalog)
     loaded = find_site(root, site_id)
+    check_new_station(station, loaded)
     existing = {ref.station for ref in loaded.record.scans}
     if station in existing or station + PARTIAL_SUFFIX in existing:
         raise CatalogError([f"{loaded.path}: station {station!r} is already in site {site_id!r}; "

@@ -35,22 +35,25 @@ class ReaderSpec:
     description: str = ""
     sniff: Callable[[Path], bool] | None = None
     """Optional content check used when several readers claim the same suffix."""
+    check: Callable[[Path], None] | None = None
+    """Optional cheap check of a file's headers (raises :class:`ReaderError`), run before it is archived."""
 
 
 READERS: dict[str, ReaderSpec] = {}
 
 
 def register_reader(name: str, suffixes: tuple[str, ...], description: str = "",
-                    sniff: Callable[[Path], bool] | None = None):
+                    sniff: Callable[[Path], bool] | None = None, check: Callable[[Path], None] | None = None):
     """Decorator: register ``func(path) -> ReadResult`` as the reader of format ``name``.
 
     ``sniff(path) -> bool`` (optional) tells whether a file's content is this format; it decides between
-    readers that share a suffix (e.g. ``.bin``).
+    readers that share a suffix (e.g. ``.bin``). ``check(path)`` (optional) refuses, from the headers
+    only, a file this reader would refuse (see :func:`check_file`).
     """
 
     def decorate(func: ReaderFunc) -> ReaderFunc:
         READERS[name] = ReaderSpec(name=name, suffixes=tuple(s.lower() for s in suffixes), read=func,
-                                   description=description, sniff=sniff)
+                                   description=description, sniff=sniff, check=check)
         return func
 
     return decorate
@@ -88,6 +91,26 @@ def read_file(path: str | os.PathLike, fmt: str | None = None) -> ReadResult:
     if fmt not in READERS:
         raise ReaderError(str(path), f"unknown format {fmt!r}; known formats: {', '.join(sorted(READERS))}")
     return READERS[fmt].read(path)
+
+
+def check_file(path: str | os.PathLike, fmt: str | None = None) -> None:
+    """A cheap look at a file's headers (no full read): refuses files that are plainly not of their format.
+
+    The nightly rebuild calls it before archiving a scan, so that a junk file (of any size) is reported
+    without being copied into the archive. Formats without a header check pass.
+
+    Raises
+    ------
+    ReaderError
+        Naming the file and what is wrong.
+    """
+    _load_builtin_readers()
+    path = Path(path)
+    fmt = fmt or detect_format(path)
+    if fmt not in READERS:
+        raise ReaderError(str(path), f"unknown format {fmt!r}; known formats: {', '.join(sorted(READERS))}")
+    if READERS[fmt].check is not None:
+        READERS[fmt].check(path)
 
 
 def read_scans(path: str | os.PathLike, fmt: str | None = None) -> list[Scan]:

@@ -7,12 +7,14 @@ import zlib
 from pathlib import Path
 
 from cistern_archive.errors import ReaderError
-from cistern_archive.sonar.interchange import read_scan
+from cistern_archive.sonar.interchange import check_npz, read_scan
 from cistern_archive.sonar.readers import ReadResult, register_reader
 
 
-@register_reader("npz", (".npz",), "cistern-archive interchange scan (.npz of arrays + JSON metadata)")
+@register_reader("npz", (".npz",), "cistern-archive interchange scan (.npz of arrays + JSON metadata)",
+                 check=check_npz)
 def read_npz(path: Path) -> ReadResult:
+    check_npz(path)  # sizes and shapes from the headers, before testzip decompresses every member
     try:
         with zipfile.ZipFile(path) as archive:  # check the zip first: numpy leaks its handle on a broken zip
             damaged = archive.testzip()

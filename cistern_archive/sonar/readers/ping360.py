@@ -289,7 +289,12 @@ def _sniff(path: Path) -> bool:
         return False
 
 
-@register_reader("ping360", (".bin",), "Blue Robotics Ping Viewer log of a Ping360", sniff=_sniff)
+def _check(path: Path) -> None:
+    if not _sniff(path):
+        raise ReaderError(str(path), f"not a Ping Viewer log: it does not start with {MAGIC_BYTES!r}")
+
+
+@register_reader("ping360", (".bin",), "Blue Robotics Ping Viewer log of a Ping360", sniff=_sniff, check=_check)
 def read_ping360(path: Path) -> ReadResult:
     """Read a Ping Viewer log; every device_data beam, split into sweeps (layout in the module docstring)."""
     data = read_bytes(path)
