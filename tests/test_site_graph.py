@@ -16,12 +16,13 @@ def _scans(n, depths=None, max_range=5.0):
             for k in range(n)]
 
 
-def _match(i, j, *, offset=(0.0, 0.0), converged=True, tentative=False, sigma=0.0, rng=None):
+def _match(i, j, *, offset=(0.0, 0.0), converged=True, tentative=False, sigma=0.0, rng=None, confidence=None):
     d = TRUTH[j] - TRUTH[i] + np.asarray(offset)
     if sigma:
         d = d + rng.normal(0, sigma, 2)
     return MatchResult(i, j, float(d[0]), float(d[1]), 0.0, 1.0, converged, 1, 0.0,
-                       reason="" if converged else "ambiguous, a second peak", tentative=tentative)
+                       reason="" if converged else "ambiguous, a second peak", tentative=tentative,
+                       confidence=confidence)
 
 
 def _placed_error(poses):
@@ -134,3 +135,15 @@ def test_tentative_bridges_agreeing_with_each_other_do_not_join_two_groups():
     ms += [_match(i, j, offset=wrong, converged=False, tentative=True) for i in (0, 1) for j in (2, 3)]
     poses = loc.localize(_scans(4), ms, p)
     assert poses.placed.tolist() == [True, True, False, False]
+
+
+def test_only_a_confident_match_joins_two_groups():
+    loc, p = SiteGraphLocalizer(), SiteGraphParams(bridge_confidence=0.9)
+    groups = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    barely = loc.localize(_scans(4), groups + [_match(1, 2, confidence=0.75)], p)
+    assert barely.placed.tolist() == [True, True, False, False]
+    sure = loc.localize(_scans(4), groups + [_match(1, 2, confidence=0.97)], p)
+    assert sure.placed.all() and _placed_error(sure).max() < 1e-6
+    # within a group a barely accepted match still adds its constraint
+    inside = consistent_edges(_scans(4), groups + [_match(1, 2, confidence=0.97), _match(0, 2, confidence=0.75)], p)
+    assert (0, 2) in {(e.i, e.j) for e in inside.edges}

@@ -77,6 +77,8 @@ class SiteGraphParams(StageParams):
     gate_chi2: float = Field(16.27, gt=0, description="99.9 % quantile of chi-square with 3 degrees of freedom")
     gate_rounds: int = Field(3, ge=0)
     tie_sigma_m: float = Field(0.02, gt=0, description="horizontal sigma of a vertical tie")
+    bridge_confidence: float = Field(0.9, ge=0, le=1, description="least confidence of the match that joins "
+                                     "two groups of scans (matches without a confidence always may)")
     tentative_variance_factor: float = Field(25.0, ge=1, description="a tentative match's covariance is "
                                              "inflated by this, so converged matches dominate where they exist")
     below: dict[str, str] = Field(default_factory=dict,
@@ -198,12 +200,13 @@ def same_level(a: RangeScan, b: RangeScan, p: SiteGraphParams) -> bool:
 
 
 def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
-                p: SiteGraphParams) -> tuple[list[Edge], list[bool]]:
+                p: SiteGraphParams) -> tuple[list[Edge], list[bool], list[float | None]]:
     """The converged and the tentative matches between distinct scans of one depth level, as edges, and
-    for each whether it converged (the last one wins when a directed pair was matched twice)."""
+    for each whether it converged and its confidence (the last one wins when a directed pair was
+    matched twice)."""
     n = len(scans)
     noise = p.noise()
-    out: dict[tuple[int, int], tuple[Edge, bool]] = {}
+    out: dict[tuple[int, int], tuple[Edge, bool, float | None]] = {}
     for m in matches:
         if not ((m.converged or m.tentative) and 0 <= m.i < n and 0 <= m.j < n and m.i != m.j):
             continue
@@ -212,8 +215,8 @@ def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         edge = Edge.of_match(m, noise)
         if not m.converged:
             edge = Edge(edge.i, edge.j, edge.z, edge.covariance * p.tentative_variance_factor)
-        out[(m.i, m.j)] = (edge, bool(m.converged))
-    return [e for e, _ in out.values()], [strong for _, strong in out.values()]
+        out[(m.i, m.j)] = (edge, bool(m.converged), m.confidence)
+    return [e for e, _, _ in out.values()], [s for _, s, _ in out.values()], [c for _, _, c in out.values()]
 
 
 def tie_edges(scans: Sequence[RangeScan], p: SiteGraphParams) -> list[Edge]:
@@ -225,7 +228,8 @@ def tie_edges(scans: Sequence[RangeScan], p: SiteGraphParams) -> list[Edge]:
 def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult], p: SiteGraphParams) -> Graph:
     """Step 2 of the module docstring: cycle support, then greedy consensus merging of scan groups."""
     n = len(scans)
-    edges, strong = match_edges(scans, matches, p)
+    edges, strong, confidence = match_edges(scans, matches, p)
+    confident = [c is None or c >= p.bridge_confidence for c in confidence]
     ties = tie_edges(scans, p)
     support = cycle_support(edges, strong, p)
     graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
@@ -236,7 +240,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         if not (strong[k] or support[k] > 0):
             graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
     while True:
-        best = _best_cluster(graph, edges, support, strong, pending, p)
+        best = _best_cluster(graph, edges, support, strong, confident, pending, p)
         if best is None:
             break
         members, (i, j, z) = best
@@ -308,11 +312,12 @@ def _frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
 
 
 def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], strong: Sequence[bool],
-                  pending: Sequence[int], p: SiteGraphParams):
+                  confident: Sequence[bool], pending: Sequence[int], p: SiteGraphParams):
     """The largest-consensus cluster of pending edges between two groups that holds at least one
-    converged match, as (edge indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is
-    none. Tentative matches never join two groups on their own: every scan of a look-alike chamber
-    matches into the same wrong place, so tentative bridges to one group corroborate each other."""
+    converged match of confidence ``bridge_confidence`` or more, as (edge indices, (i, j, z)) ready for
+    :func:`_merge`, or ``None`` when there is none. Tentative matches never join two groups on their
+    own, nor do barely accepted ones: every scan of a look-alike chamber matches into the same wrong
+    place, so such bridges to one group corroborate each other."""
     by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k in pending:
         e = edges[k]
@@ -326,7 +331,7 @@ def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], s
     for (ga, gb), items in sorted(by_pair.items()):
         for k, offset in items:
             members = [k2 for k2, o2 in items if _close(offset.between(o2), p, offset)]
-            if not any(strong[k2] for k2 in members):
+            if not any(strong[k2] and confident[k2] for k2 in members):
                 continue
             score = sum(1 + support[k2] for k2 in members)
             if score > best_score:
