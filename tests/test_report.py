@@ -186,7 +186,7 @@ def test_pages_are_accessible_and_offline(catalog, page):
         elif anchor:
             assert anchor in found.ids, href
     assert found.tables == found.captions
-    assert all(th.get("scope") in ("col", "row") for th in found.th)
+    assert all(th.get("scope") in ("col", "row", "rowgroup") for th in found.th)
     assert found.figures == found.figcaptions
     assert "<style>" in path.read_text() and "@media print" in path.read_text()
 
@@ -239,14 +239,76 @@ def test_coordinates_are_redacted_when_the_record_asks(catalog):
     assert needle in (root / "bell" / "index.html").read_text()
 
 
-def test_index_lists_sites_and_the_difference_table(catalog):
+class _Table(HTMLParser):
+    """The header and body cells of the table with a given id."""
+
+    def __init__(self, table_id: str) -> None:
+        super().__init__()
+        self.table_id, self.inside, self.cell = table_id, False, None
+        self.head: list[str] = []
+        self.rows: list[list[str]] = []
+        self.section = ""
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table" and dict(attrs).get("id") == self.table_id:
+            self.inside = True
+        elif self.inside and tag in ("thead", "tbody"):
+            self.section = tag
+        elif self.inside and tag == "tr" and self.section == "tbody":
+            self.rows.append([])
+        elif self.inside and tag in ("th", "td"):
+            self.cell = ""
+
+    def handle_endtag(self, tag):
+        if tag == "table":
+            self.inside = False
+        elif self.inside and tag in ("th", "td") and self.cell is not None:
+            (self.head if self.section == "thead" else self.rows[-1]).append(" ".join(self.cell.split()))
+            self.cell = None
+
+    def handle_data(self, data):
+        if self.cell is not None:
+            self.cell += data
+
+
+def read_table(html: str, table_id: str) -> tuple[list[str], list[list[str]]]:
+    parser = _Table(table_id)
+    parser.feed(html)
+    return parser.head, parser.rows
+
+
+def test_index_lists_sites_with_honest_status(catalog):
     root, _ = catalog
     html = (root / "index.html").read_text()
     for text in ("Swimming pool", "Bell cistern", "Broken site", "4 of 4", "3 of 4", "0 of 4",
-                 "reference scan has no valid beams", 'id="difference-table"', "Width (m)", "Length (m)",
-                 "pool/thumbnail.png", "2024-01-01T00:00:00Z", "Table IV"):
+                 "reference scan has no valid beams", "pool/thumbnail.png", "2024-01-01T00:00:00Z",
+                 "1 ok, 1 partial, 1 failed", "1 of 4 scans not placed (S4)"):
         assert text in html, text
     assert "broken/thumbnail.png" not in html
+    for site, status in (("pool", "ok"), ("bell", "partial"), ("broken", "failed")):
+        assert re.search(rf'id="site-{site}".*?badge badge-{status}">{status}<', html, re.S), site
+
+
+def test_index_has_one_row_per_site_and_dimension_truth_first_and_no_sparse_column(catalog):
+    root, _ = catalog
+    html = (root / "index.html").read_text()
+    head, rows = read_table(html, "difference-table")
+    for k, row in enumerate(rows):  # the site cell spans its rows
+        if len(row) == len(head) - 1:
+            rows[k] = [rows[k - 1][0]] + row
+    assert head == ["Site", "Dimension", "Map (m)", "Truth (m)", "Map − truth (m)", "Map − truth (%)",
+                    "Mosaic (m)", "Map − mosaic (m)", "Probes", "Probe std (m)"]
+    assert [(r[0], r[1]) for r in rows] == [("Swimming pool", "Width"), ("Swimming pool", "Length"),
+                                            ("Bell cistern", "Width"), ("Bell cistern", "Length")]
+    assert all(r[3] == "3.610" and r[6] == "—" for r in rows if r[1] == "Width")  # truth, no mosaic
+    assert all(r[3] == "—" and r[6] == "7.210" for r in rows if r[1] == "Length")
+    assert all(r[8] == "10 of 10" for r in rows)
+    for k in range(2, len(head)):
+        assert any(r[k] != "—" for r in rows), head[k]
+    caption = re.search(r'id="difference-table".*?<caption>(.*?)</caption>', html, re.S).group(1)
+    for heading in head[2:]:
+        assert f"<strong>{heading}</strong>:" in caption, heading
+    assert 'id="summary-figures"' in html and "median" in html and "Weak dimensions" in html
 
 
 def test_site_page_with_images_fits_the_size_budget(catalog):

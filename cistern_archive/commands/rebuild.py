@@ -26,8 +26,8 @@ class PlainProgress:
         self.done += 1
         seconds = outcome.timings_s.get("wall", 0.0)
         line = f"[{self.done}/{self.total}] {outcome.id}: {outcome.status} ({seconds:.1f} s)"
-        if outcome.error:
-            line += f": {outcome.error.splitlines()[0]}"
+        if outcome.reasons:
+            line += f": {outcome.reasons[0].splitlines()[0]}"
         typer.echo(line)
 
 
@@ -49,10 +49,12 @@ class RichProgress:
                                       completed=skipped)
 
     def site_done(self, outcome) -> None:
-        style = {"ok": "green", "failed": "bold red"}.get(outcome.status, "")
+        from rich.markup import escape
+
+        style = {"ok": "green", "partial": "yellow", "failed": "bold red"}.get(outcome.status, "")
         message = f"[{style}]{outcome.status}[/] {outcome.id} ({outcome.timings_s.get('wall', 0.0):.1f} s)"
-        if outcome.error:
-            message += f": {outcome.error.splitlines()[0]}"
+        if outcome.reasons:
+            message += f": {escape(outcome.reasons[0].splitlines()[0])}"
         self.bar.console.print(message, highlight=False)
         self.bar.advance(self.task)
 
@@ -75,8 +77,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Rebuild every changed site into OUT/<site-id>/, then OUT/index.html and OUT/summary.json.
 
-        Exit codes: 0 all built or unchanged; 1 some sites failed; 2 usage or catalog error; 3 internal
-        error; 130 interrupted.
+        Exit codes: 0 every site ok or unchanged; 1 some site partial (a scan unplaced or a dimension
+        not measured) or failed; 2 usage or catalog error; 3 internal error; 130 interrupted.
         """
         from cistern_archive.service.rebuild import rebuild as run_rebuild
 
@@ -96,10 +98,11 @@ def register(app: typer.Typer) -> None:
                 progress.stop()
         for problem in summary.catalog_problems:
             typer.echo(problem, err=True)
-        for failed in summary.failed:
-            typer.echo(f"FAILED {failed.id}: {failed.error}", err=True)
+        for site_outcome in summary.not_ok:
+            typer.echo(f"{site_outcome.status.upper()} {site_outcome.id}: {'; '.join(site_outcome.reasons)}", err=True)
         counts = summary.counts()
-        typer.echo(f"{counts['ok']} built, {counts['failed']} failed, {counts['skipped']} unchanged "
+        typer.echo(f"{counts['ok']} ok, {counts['partial']} partial, {counts['failed']} failed, "
+                   f"{counts['skipped']} unchanged "
                    f"in {summary.seconds:.2f} s; log {out / summary.log}")
         typer.echo(str((out / "index.html").resolve()))
         raise typer.Exit(summary.exit_code)

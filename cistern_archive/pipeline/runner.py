@@ -26,7 +26,14 @@ from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.errors import StageError
-from cistern_archive.pipeline.contracts import STAGES, MatchGuess, MatchResult, StageParams, accepts_guess
+from cistern_archive.pipeline.contracts import (
+    STAGES,
+    DimensionRow,
+    MatchGuess,
+    MatchResult,
+    StageParams,
+    accepts_guess,
+)
 from cistern_archive.pipeline.registry import LoadedPlugin, Registry, default_registry
 from cistern_archive.pipeline.results import (
     DimensionResult,
@@ -38,6 +45,7 @@ from cistern_archive.pipeline.results import (
     SiteResult,
     StageFailure,
 )
+from cistern_archive.pipeline.status import label_indices, site_status, weakness
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.scan import RangeScan, Scan
 
@@ -129,8 +137,9 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> Sit
     Returns
     -------
     SiteBuild
-        ``result.status`` is ``"ok"`` or ``"failed"`` (with ``result.failure`` naming the stage and the
-        input that caused it); the arrays reached before a failure are kept for the report.
+        ``result.status`` is ``"ok"``, ``"partial"`` or ``"failed"`` (:func:`~cistern_archive.pipeline.status.site_status`,
+        with ``result.status_reasons``; ``result.failure`` names the stage and the input that stopped a
+        build); the arrays reached before a failure are kept for the report.
     """
     from cistern_archive.sonar.segmentation import segment
 
@@ -231,6 +240,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
     result = build.result.model_copy()
     truth = {t.station: t for t in record.truth}
     poses = build.poses
+    labels = [ref.station for ref in record.scans]
     scans = []
     for k, ref in enumerate(record.scans):
         raw = build.raw_scans[k] if k < len(build.raw_scans) else None
@@ -246,7 +256,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
             yaw_rad=float(poses.yaw_rad[k]) if poses is not None else (raw.yaw_rad if raw else 0.0),
             depth_m=raw.depth_m if raw else (ref.depth_m or 0.0),
             placed=placed,
-            reason=(poses.reasons[k] if poses is not None else "not localized: " + (result.error or "")),
+            reason=label_indices(poses.reasons[k] if poses is not None else "not localized: " + (result.error or ""),
+                                 labels),
             sigma_x_m=sigma[0], sigma_y_m=sigma[1],
             truth_x_m=t.x_m if t else None, truth_y_m=t.y_m if t else None,
         ))
@@ -259,17 +270,14 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         for m in build.matches
     ]
     if build.table is not None:
-        result.dimensions = [
-            DimensionResult(name=row.name, map_m=_finite(row.map_m), reference_m=row.reference_m,
-                            reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
-                            depth_m=_finite(row.depth_m) or 0.0,
-                            probe_std_m=_finite(row.probe_std_m), probes_m=[float(p) for p in row.probes],
-                            note=row.note)
-            for row in build.table.rows
-        ]
+        result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels)
+                             for k, row in enumerate(build.table.rows)]
         result.dimension_stats = {k: _finite(v) for k, v in sorted(build.table.stats.items())}
     if build.map_result is not None:
         result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
+    result.status, result.status_reasons = site_status(
+        failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
+        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [])
     result.timings_s = dict(timings)
     result.timings_s["total"] = round(sum(timings.values()), 6)
     result.provenance = Provenance(
@@ -281,6 +289,40 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         numpy=np.__version__,
     )
     return result
+
+
+def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
+    """How many probes the record asked for the ``k``-th row (by position when it matches the
+    reference, else by name and kind; 0 when no reference matches)."""
+    refs = record.references
+    if k < len(refs) and refs[k].name == row.name and refs[k].kind == row.reference_kind:
+        return refs[k].measure.repeats
+    same = [r for r in refs if r.name == row.name and r.kind == row.reference_kind]
+    return same[0].measure.repeats if same else 0
+
+
+def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str]) -> DimensionResult:
+    """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`)
+    when it is measured."""
+    map_m, std = _finite(row.map_m), _finite(row.probe_std_m)
+    weak = weakness(len(row.probes), requested, std) if map_m is not None else ""
+    return DimensionResult(name=row.name, map_m=map_m, reference_m=row.reference_m,
+                           reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
+                           depth_m=_finite(row.depth_m) or 0.0, probe_std_m=std,
+                           probes_m=[float(p) for p in row.probes], probes_requested=requested,
+                           weak=bool(weak), weak_reason=weak, note=label_indices(row.note, labels))
+
+
+def _unmeasured(record: SiteRecord, dimensions: Sequence[DimensionResult]) -> list[str]:
+    """``name (kind): reason`` of every reference the table has no measured value for."""
+    measured = {(d.name, d.reference_kind) for d in dimensions if d.map_m is not None}
+    notes = {(d.name, d.reference_kind): d.note for d in dimensions}
+    out = []
+    for ref in record.references:
+        if (ref.name, ref.kind) not in measured:
+            note = notes.get((ref.name, ref.kind)) or "no wall found"
+            out.append(f"{ref.name} ({ref.kind}): {note}")
+    return out
 
 
 def write_json_atomic(data: Any, path: Path) -> None:

@@ -22,6 +22,7 @@ from cistern_archive.errors import CisternError
 from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.grid.volume import stack_slices
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
+from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import figures as fig
 from cistern_archive.report import model3d, offscreen
 from cistern_archive.report.config import ReportConfig
@@ -34,7 +35,7 @@ from cistern_archive.report.files import (
     write_npz,
 )
 from cistern_archive.report.gltf import write_glb
-from cistern_archive.report.html import number, render_site_page, signed
+from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_site_page, signed
 from cistern_archive.sonar.scan import compass_deg_from_yaw
 
 SECTION_TITLES = {
@@ -270,8 +271,27 @@ def _dimension_rows(result: SiteResult) -> list[dict[str, str]]:
         percent = None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m
         rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": number(d.map_m),
                      "reference": number(d.reference_m), "diff": signed(d.diff_m), "percent": signed(percent, 2),
-                     "std": number(d.probe_std_m), "probes": str(len(d.probes_m)), "note": d.note})
+                     "std": number(d.probe_std_m), "probes": probe_count(d), "weak": d.weak,
+                     "note": "; ".join(n for n in (d.weak_reason and f"weak: {d.weak_reason}", d.note) if n)})
     return rows
+
+
+STAT_EXPLANATIONS = {
+    "percent_difference": "the paper's percent difference (Sec. IV) between the map's width/length ratio a and "
+                          "the true ratio b, 100 |a − b| / ((a + b) / 2): how far the map's shape is from the "
+                          "truth, whatever its scale (not the per-dimension column of the table)",
+    "max_abs_diff_m": "largest |map − reference| over the rows of the table, truth and mosaic",
+    "mean_abs_diff_m": "mean |map − reference| over the rows of the table, truth and mosaic",
+}
+
+
+def stat_explanation(key: str) -> str:
+    """What a summary statistic of the comparator is (``probe_std_<name>_m`` and the fixed keys)."""
+    if key in STAT_EXPLANATIONS:
+        return STAT_EXPLANATIONS[key]
+    if key.startswith("probe_std_") and key.endswith("_m"):
+        return f"sample standard deviation of the probes of '{key[len('probe_std_'):-2].replace('_', ' ')}' (truth)"
+    return ""
 
 
 def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
@@ -286,7 +306,7 @@ def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
             label = label.replace(" pct", "")
         else:
             text = number(value, 3)
-        rows.append({"label": label, "value": text})
+        rows.append({"label": label, "value": text, "explanation": stat_explanation(key)})
     return rows
 
 
@@ -331,13 +351,14 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         for p in provenance.plugins]
     seeds = [] if provenance is None else sorted(provenance.seeds.items())
     reference = result.reference_scan
-    status_text = {"ok": "built", "failed": "failed"}.get(result.status, result.status)
+    status_text = STATUS_TEXT.get(result.status, result.status)
     return {
         "version": __version__,
         "build_time": format_time(build_time_from_env()),
         "result": result,
         "record": build.record,
         "status_text": status_text,
+        "weak_threshold": f"{MAX_PROBE_STD_M:.2f}",
         "ids": ids,
         "sections": sections,
         "location": location_text(build.record),

@@ -7,7 +7,8 @@ Order of a rebuild of ``OUT``:
    clean up after any interrupted rebuild (:func:`~cistern_archive.service.publish.recover`);
 2. validate the catalog; the valid records are built even when others have problems (exit code 2);
 3. ingest every input of every selected site into the archive and compute its build key;
-4. skip the sites whose published ``build.json`` has the same key and status ``ok`` (unless ``force``);
+4. skip the sites whose published ``build.json`` has the same key and status ``ok`` or ``partial``
+   (unless ``force``; a ``failed`` site is always retried);
 5. run :func:`~cistern_archive.service.worker.run_site` for the others on the chosen executor, in
    completion order, recording ``build`` and ``publish`` events and the published artifacts;
 6. render ``OUT/index.html`` from every published site (kept when nothing was published and the
@@ -99,10 +100,16 @@ def published_build(site_dir: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
+CURRENT_STATUSES = ("ok", "partial")
+"""Published statuses a build key can stand for: the same inputs give the same ``partial`` build
+again, while a ``failed`` one may have failed for a reason outside its inputs and is retried."""
+
+
 def is_current(site_dir: Path, key: str) -> bool:
-    """Whether the published report was built with ``key``, succeeded and is complete on disk."""
+    """Whether the published report was built with ``key``, ran to the end (``ok`` or ``partial``)
+    and is complete on disk."""
     info = published_build(site_dir)
-    if info is None or info.get("build_key") != key or info.get("status") != "ok":
+    if info is None or info.get("build_key") != key or info.get("status") not in CURRENT_STATUSES:
         return False
     files = info.get("files") or {}
     return bool(files) and all((site_dir / name).is_file() for name in files)
@@ -135,11 +142,14 @@ def _size(path: Path) -> int:
         return -1
 
 
+BUILD_EVENT_OUTCOME = {"ok": "success", "partial": "partial", "failed": "failure", "skipped": "skipped"}
+
+
 def _record_outcome(archive: Archive, run_id: str, outcome: SiteOutcome, out: Path) -> None:
     """``build`` event, and for a published site its artifacts and a ``publish`` event."""
     index = archive.index
     with index.transaction():
-        index.add_event("build", agent=archive.agent, outcome="success" if outcome.status == "ok" else "failure",
+        index.add_event("build", agent=archive.agent, outcome=BUILD_EVENT_OUTCOME[outcome.status],
                         run_id=run_id, site_id=outcome.id,
                         detail={"build_key": outcome.build_key, "error": outcome.error, "worker": outcome.worker,
                                 "seconds": outcome.timings_s.get("wall")})
@@ -157,6 +167,8 @@ def _log_outcome(log: RunLog, outcome: SiteOutcome) -> None:
     line = f"site {outcome.id}: {outcome.status}{took} (key {outcome.build_key[:12]}, worker {outcome.worker})"
     if outcome.status == "failed":
         log.write(f"{line}: {outcome.error}\n{outcome.detail}".rstrip(), "ERROR")
+    elif outcome.status == "partial":
+        log.write(f"{line}: {'; '.join(outcome.reasons)}", "WARN")
     else:
         log.write(line)
 
@@ -306,7 +318,8 @@ def rebuild(
             plans = [plan_site(loaded, store, registry, run_id, report_config) for loaded in selected]
             todo = [p for p in plans if force or not is_current(out / p.site_id, p.key.key)]
             skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key,
-                                   report=f"{p.site_id}/index.html")
+                                   report=f"{p.site_id}/index.html",
+                                   report_status=(published_build(out / p.site_id) or {}).get("status"))
                        for p in plans if p not in todo]
             summary.sites.extend(skipped)
             for outcome in skipped:
@@ -327,7 +340,8 @@ def rebuild(
                                    executor=summary.executor)
         summary.write(out / SUMMARY_NAME)
         counts = summary.counts()
-        log.write(f"done in {summary.seconds:.2f} s: {counts['ok']} built, {counts['failed']} failed, "
+        log.write(f"done in {summary.seconds:.2f} s: {counts['ok']} ok, {counts['partial']} partial, "
+                  f"{counts['failed']} failed, "
                   f"{counts['skipped']} skipped; exit code {130 if summary.interrupted else summary.exit_code}")
     if summary.interrupted:
         raise KeyboardInterrupt

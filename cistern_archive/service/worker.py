@@ -68,7 +68,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
     Returns
     -------
     SiteOutcome
-        ``ok`` or ``failed``; on failure ``error`` says where, and the previous report (if any) is kept
+        ``ok``, ``partial`` or ``failed`` (with ``reasons``); on failure ``error`` says where, and the previous report (if any) is kept
         unless the failure was a pipeline stage (whose failure report is published).
     """
     from cistern_archive.catalog.loader import load_record
@@ -98,10 +98,10 @@ def run_site(task: SiteTask) -> SiteOutcome:
         publish(staged, out / task.site_id)
         staged = None
         timings["publish"] = round(time.perf_counter() - tick, 6)
-        status, error = build.result.status, build.result.error
+        status, error, reasons = build.result.status, build.result.error, list(build.result.status_reasons)
         detail = build.result.failure.traceback if build.result.failure else ""
     except Exception as exc:
-        status, files = "failed", {}
+        status, files, reasons = "failed", {}, []
         error = f"{type(exc).__name__}: {exc}"
         detail = traceback.format_exc(limit=12)
     finally:
@@ -109,6 +109,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
             discard(staged)
     timings["wall"] = round(time.perf_counter() - start, 6)
     timings["cpu"] = round(time.process_time() - cpu_start, 6)
-    return SiteOutcome(id=task.site_id, status=status, error=error, build_key=task.build_key, timings_s=timings,
+    return SiteOutcome(id=task.site_id, status=status, reasons=reasons or ([error] if error else []),
+                       report_status=status if files else None, error=error, build_key=task.build_key, timings_s=timings,
                        report=f"{task.site_id}/index.html" if files else None, worker=worker_name(),
                        peak_rss_mb=peak_rss_mb(), attempts=1, artifacts=files, detail=detail)
