@@ -377,3 +377,31 @@ def test_download_list_prints_no_size_for_the_timed_result(tmp_path):
     rows = {d["file"]: d["size"] for d in _downloads({"result": "result.json", "dimensions-csv": "dimensions.csv"},
                                                      tmp_path)}
     assert rows == {"result.json": "", "dimensions.csv": "4 B"}
+
+
+def test_stations_above_one_another_share_one_label():
+    from cistern_archive.report.figures import stacked_labels
+
+    xy = np.array([[0.0, 0.0], [0.01, -0.01], [2.0, 0.0], [0.0, 0.02]])
+    shown = stacked_labels(xy, ["d1a", "d2a", "d1b", "d3a"], tolerance_m=0.05)
+    assert [text for _, text in shown] == ["d1a / d2a / d3a", "d1b"]
+
+
+def test_depth_colour_bar_runs_the_models_way():
+    from cistern_archive.report.model3d import depth_annotations
+
+    labels = depth_annotations((0.6, 4.6))
+    # coloured by elevation (−depth): the shallowest depth sits at the top of the bar, the deepest at the bottom
+    top, bottom = max(labels), min(labels)
+    assert labels[top] == "0.6" and labels[bottom] == "4.6"
+
+
+def test_parameters_read_as_key_and_value(catalog):
+    from cistern_archive.report.site import parameter_items
+
+    assert parameter_items({"tau_pw": 6.0, "below": {"s2": "s1"}, "refine": True, "sizes": [1, 2]}) == [
+        {"key": "below", "value": "s2: s1"}, {"key": "refine", "value": "yes"}, {"key": "sizes", "value": "1, 2"},
+        {"key": "tau_pw", "value": "6"}]
+    root, _ = catalog
+    html = (root / "pool" / "index.html").read_text()
+    assert "<dt>tau_pw</dt><dd>6</dd>" in html and "{&#34;" not in html and '{"' not in html

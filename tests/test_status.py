@@ -86,3 +86,28 @@ def test_rebuild_reports_partial_sites_and_exits_1(partial_catalog, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert {s["id"]: (s["status"], s["report_status"]) for s in summary["sites"]} == {
         "cistern-000": ("skipped", "ok"), "cistern-001": ("skipped", "partial")}
+
+
+def test_workers_mark_their_running_stage_for_the_terminal(tmp_path):
+    from cistern_archive.commands.rebuild import running_stages, running_text
+    from cistern_archive.service.worker import PROGRESS_DIR, StageMarker
+
+    first, second = StageMarker(tmp_path, "well-b"), StageMarker(tmp_path, "cistern-a")
+    first("match")
+    second("load")
+    second("report")
+    assert running_stages(tmp_path / PROGRESS_DIR) == [("cistern-a", "report"), ("well-b", "match")]
+    assert running_text(running_stages(tmp_path / PROGRESS_DIR)) == "building cistern-a (report), well-b (match)"
+    first.clear()
+    second.clear()
+    assert running_stages(tmp_path / PROGRESS_DIR) == [] and running_text([]) == ""
+    assert running_stages(tmp_path / "absent") == []
+
+
+def test_build_site_announces_each_stage(partial_catalog):
+    from cistern_archive.catalog.loader import load_record
+    from cistern_archive.pipeline.runner import build_site
+
+    stages: list[str] = []
+    build_site(load_record(partial_catalog / "sites" / "cistern-000.yaml", partial_catalog), on_stage=stages.append)
+    assert stages == ["configure", "load", "segment", "match", "localize", "map", "compare"]

@@ -49,6 +49,7 @@ def inspect_file(path: Path, fmt: str | None = None) -> dict:
 
 def _print_table(doc: dict) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     console = Console()
@@ -61,7 +62,7 @@ def _print_table(doc: dict) -> None:
                       "-" if s["timestamp"] is None else f"{s['timestamp']:.3f}")
     console.print(table)
     for warning in doc["warnings"]:
-        console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True, markup=False, highlight=False)
+        console.print(f"[yellow]warning:[/] {escape(warning)}", soft_wrap=True, highlight=False)
 
 
 def register(app: typer.Typer) -> None:

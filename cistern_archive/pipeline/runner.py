@@ -75,11 +75,14 @@ class Stage:
 
 
 class _Timer:
-    def __init__(self) -> None:
+    def __init__(self, on_stage: Callable[[str], None] | None = None) -> None:
         self.timings: dict[str, float] = {}
+        self.on_stage = on_stage
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
+        if self.on_stage is not None:
+            self.on_stage(name)
         start = time.perf_counter()
         try:
             yield
@@ -131,8 +134,11 @@ def _run(stage: str, input_label: str, func: Callable[[], T]) -> T:
         raise StageError(stage, input_label, f"{type(exc).__name__}: {exc}") from exc
 
 
-def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> SiteBuild:
+def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
+               on_stage: Callable[[str], None] | None = None) -> SiteBuild:
     """Run the whole pipeline for one site; never raises for a stage failure.
+
+    ``on_stage(name)`` is called as each stage starts (the rebuild shows it on a terminal).
 
     Returns
     -------
@@ -145,7 +151,7 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> Sit
 
     registry = registry or default_registry()
     record = loaded.record
-    timer = _Timer()
+    timer = _Timer(on_stage)
     build = SiteBuild(result=SiteResult(site_id=record.id, name=record.name, status="ok"), record=record)
     stages: dict[str, Stage] = {}
     try:

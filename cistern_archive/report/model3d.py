@@ -209,6 +209,12 @@ def label_offset(view: str, bounds: tuple[float, ...]) -> np.ndarray:
             "oblique-sw": np.array([0.0, -step, 0.0])}.get(view, np.array([0.0, 0.0, -step]))
 
 
+def depth_annotations(depth_range: tuple[float, float], n: int = 5) -> dict[float, str]:
+    """Colour-bar labels: ``n`` depths from the shallowest (top of the bar) to the deepest, placed at
+    their elevation (``-depth``), the scalar the renders are coloured by."""
+    return {float(-d): f"{d:.1f}" for d in np.linspace(depth_range[0], depth_range[1], n)}
+
+
 def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tuple[float, float]) -> dict[str, str]:
     """Render :data:`VIEWS` off screen into ``out_dir/model-<view>.png``.
 
@@ -229,13 +235,17 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
     section = _section(mesh)
     if section.n_points == 0:
         section = mesh
+    for shown in (mesh, section):
+        shown.point_data["elevation_m"] = -np.asarray(shown.point_data["depth_m"], dtype=np.float32)
     plotter = pyvista.Plotter(off_screen=True, window_size=list(config.window_px))
     try:
         plotter.set_background("white")
-        style = dict(scalars="depth_m", cmap=COLORMAP, clim=depth_range, smooth_shading=True, specular=0.2)
-        bar = dict(title="Depth (m)", color="black", vertical=True, n_labels=5, fmt="%.1f", position_x=0.86,
+        # Coloured by elevation so that the bar runs the model's way (shallow at the top), labelled in depth.
+        style = dict(scalars="elevation_m", cmap=COLORMAP + "_r", clim=(-depth_range[1], -depth_range[0]),
+                     smooth_shading=True, specular=0.2)
+        bar = dict(title="Depth (m)", color="black", vertical=True, n_labels=0, position_x=0.86,
                    position_y=0.12, width=0.07, height=0.76, title_font_size=22, label_font_size=18)
-        whole = plotter.add_mesh(mesh, scalar_bar_args=bar, **style)
+        whole = plotter.add_mesh(mesh, scalar_bar_args=bar, annotations=depth_annotations(depth_range), **style)
         cut = plotter.add_mesh(section, show_scalar_bar=False, **style)
         for view in VIEWS:
             plotter.suppress_rendering = True

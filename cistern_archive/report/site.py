@@ -8,7 +8,6 @@ Every file name is fixed or derived from a title; nothing depends on the clock u
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -310,6 +309,25 @@ def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
     return rows
 
 
+def parameter_text(value: Any) -> str:
+    """A parameter value as a reader writes it: numbers and words as they are, lists comma-separated,
+    mappings as ``key: value`` pairs."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, dict):
+        return "; ".join(f"{k}: {parameter_text(v)}" for k, v in sorted(value.items())) or "none"
+    if isinstance(value, list | tuple):
+        return ", ".join(parameter_text(v) for v in value) or "none"
+    return "none" if value is None else str(value)
+
+
+def parameter_items(params: dict[str, Any]) -> list[dict[str, str]]:
+    """``[{"key", "value"}]`` of a plugin's parameters, sorted by name."""
+    return [{"key": key, "value": parameter_text(params[key])} for key in sorted(params)]
+
+
 def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], model: ModelOutcome,
                  downloads: list[dict[str, str]], site_dir: Path) -> dict[str, Any]:
     """Everything ``site.html.j2`` shows, as plain strings, lists and dicts."""
@@ -347,7 +365,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     provenance = result.provenance
     plugins = [] if provenance is None else [
         {"stage": p.stage, "plugin": p.plugin, "distribution": p.distribution, "version": p.version,
-         "params": json.dumps(p.params, sort_keys=True, default=str) if p.params else "defaults"}
+         "params": parameter_items(p.params)}
         for p in provenance.plugins]
     seeds = [] if provenance is None else sorted(provenance.seeds.items())
     reference = result.reference_scan

@@ -34,7 +34,7 @@ from cistern_archive.service.lock import RebuildLock
 from cistern_archive.service.publish import recover
 from cistern_archive.service.runlog import LOG_DIR, RunLog, new_run_id
 from cistern_archive.service.summary import RebuildSummary, SiteOutcome
-from cistern_archive.service.worker import BUILD_INFO, SiteTask, run_site
+from cistern_archive.service.worker import BUILD_INFO, PROGRESS_DIR, SiteTask, run_site
 
 SUMMARY_NAME = "summary.json"
 
@@ -173,6 +173,13 @@ def _log_outcome(log: RunLog, outcome: SiteOutcome) -> None:
         log.write(line)
 
 
+def clear_progress(out: Path) -> None:
+    """Remove the stage markers of the workers (``OUT/.progress``; any left by a killed rebuild)."""
+    import shutil
+
+    shutil.rmtree(out / PROGRESS_DIR, ignore_errors=True)
+
+
 def published_sites(out: Path, site_ids: list[str]) -> list[str]:
     """The catalog's sites that have a published ``result.json``, sorted."""
     return sorted(site_id for site_id in site_ids if (out / site_id / "result.json").is_file())
@@ -300,6 +307,7 @@ def rebuild(
         if lock.stale:
             log.write(f"took over a stale lock left by pid {lock.stale.get('pid')} (not running)", "WARN")
         summary.recovered = recover(out)
+        clear_progress(out)
         for action in summary.recovered:
             log.write(f"recovery: {action}", "WARN")
         # A plugin that fails to import fails the sites that use it (exit 1), not the catalog (exit 2).
@@ -327,6 +335,7 @@ def rebuild(
             _execute(todo, summary, store, log, progress, out=out, catalog=catalog, workers=workers,
                      scheduler=scheduler, scheduler_file=scheduler_file, skipped=len(skipped),
                      report_config=report_config)
+            clear_progress(out)
             summary.sites.sort(key=lambda s: s.id)
             summary.index_sites = published_sites(out, [loaded.record.id for loaded in report.records])
             if index_is_current(out, summary.index_sites, summary):

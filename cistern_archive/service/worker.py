@@ -23,6 +23,34 @@ from cistern_archive.service.publish import discard, publish, staging_dir
 from cistern_archive.service.summary import SiteOutcome
 
 BUILD_INFO = "build.json"
+PROGRESS_DIR = ".progress"
+"""``OUT/.progress/<site-id>`` holds the stage a worker is running for that site, while it runs."""
+
+
+class StageMarker:
+    """Writes the running stage of one site to ``OUT/.progress/<site-id>`` (renamed into place, so a
+    reader never sees half a name) and removes it when the site is done. Best effort: a worker on
+    another host whose ``OUT`` is not shared just shows nothing."""
+
+    def __init__(self, out: Path, site_id: str) -> None:
+        self.path = out / PROGRESS_DIR / site_id
+
+    def __call__(self, stage: str) -> None:
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_name(f".{self.path.name}.tmp")
+            tmp.write_text(stage, encoding="utf-8")
+            os.replace(tmp, self.path)
+        except OSError:
+            pass
+
+    def clear(self) -> None:
+        """Remove the marker, and the folder when no other site is running."""
+        try:
+            self.path.unlink(missing_ok=True)
+            self.path.parent.rmdir()
+        except OSError:  # absent, or another worker's marker is still there
+            pass
 
 
 @dataclass(frozen=True)
@@ -80,11 +108,13 @@ def run_site(task: SiteTask) -> SiteOutcome:
     timings: dict[str, float] = {}
     staged: Path | None = None
     out = Path(task.out)
+    marker = StageMarker(out, task.site_id)
     try:
         staged = staging_dir(out, task.site_id)
         loaded = load_record(Path(task.record_path), Path(task.catalog_root))
-        build = build_site(loaded)
+        build = build_site(loaded, on_stage=marker)
         timings.update(build.result.timings_s)
+        marker("report")
         tick = time.perf_counter()
         write_site_result(build, staged)
         render_site(build, staged, config=ReportConfig(**(task.report_config or {})))
@@ -95,6 +125,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
                            "key_material": task.key_material},
                           staged / BUILD_INFO)
         tick = time.perf_counter()
+        marker("publish")
         publish(staged, out / task.site_id)
         staged = None
         timings["publish"] = round(time.perf_counter() - tick, 6)
@@ -105,6 +136,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
         error = f"{type(exc).__name__}: {exc}"
         detail = traceback.format_exc(limit=12)
     finally:
+        marker.clear()
         if staged is not None:
             discard(staged)
     timings["wall"] = round(time.perf_counter() - start, 6)
