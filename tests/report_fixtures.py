@@ -32,6 +32,7 @@ from cistern_archive.pipeline.results import (
     SiteResult,
     StageFailure,
 )
+from cistern_archive.grid.surface import wall_surface
 from cistern_archive.pipeline.runner import dimension_result
 from cistern_archive.pipeline.status import site_status
 from cistern_archive.sonar.scan import RangeScan, Scan
@@ -256,8 +257,10 @@ def make_site_build(
         dimension_stats=table.stats, map_stats=map_result.stats, reference_scan=0, provenance=provenance,
         timings_s={"load": 0.12, "segment": 0.05, "match": 2.4, "localize": 0.01, "map": 0.3, "compare": 0.02},
     )
+    mesh = wall_surface(map_result, poses, [s.depth_m for s in ranged]) if slices == 1 else \
+        wall_surface(map_result, poses, [float(d) for d in np.linspace(1.0, 3.0, n)])
     return SiteBuild(result=result, record=record, raw_scans=raw, range_scans=ranged, matches=matches,
-                     poses=poses, map_result=map_result, table=table)
+                     poses=poses, map_result=map_result, table=table, mesh=mesh)
 
 
 SITES = {

@@ -14,13 +14,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from cistern_archive.grid.volume import stack_slices
-from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult
+from cistern_archive.grid.surface import SurfaceParams, wall_surface
+from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses
 from cistern_archive.report import ReportConfig, page_bytes, render_site
 from cistern_archive.report.files import build_time_from_env, slug, unique_slugs, write_npz
 from cistern_archive.report.gltf import glb_bytes, read_glb
 from cistern_archive.report.html import signed
-from cistern_archive.report.model3d import build_mesh
 from report_fixtures import LATITUDE, LENGTH_M, SITES, WIDTH_M, make_site_build, render_catalog
 
 @pytest.fixture(scope="module")
@@ -29,8 +28,10 @@ def catalog(tmp_path_factory) -> tuple[Path, dict[str, dict[str, str]]]:
     return root, render_catalog(root)
 
 
-# ------------------------------------------------------------------------------------------ volume
-def _box_grid(half: float, depth: float, cell: float = 0.05) -> EvidenceGrid:
+# ------------------------------------------------------------------------------------------ surface
+def _box_grid(half: float, depth: float, cell: float = 0.05, *, open_side: bool = False) -> EvidenceGrid:
+    """A square room: free inside (−2), walls (+4), unknown outside; ``open_side`` leaves the east wall
+    unseen (the free water just ends in unknown space)."""
     n = int(round(2 * (half + 0.5) / cell))
     centres = -(half + 0.5) + (np.arange(n) + 0.5) * cell
     gx, gy = np.meshgrid(centres, centres)
@@ -38,40 +39,52 @@ def _box_grid(half: float, depth: float, cell: float = 0.05) -> EvidenceGrid:
     log_odds = np.zeros((n, n), dtype=np.float32)
     log_odds[inside > cell] = -2.0
     log_odds[np.abs(inside) <= cell / 2 + 1e-9] = 4.0
+    if open_side:
+        log_odds[(gx > half - cell) & (log_odds > 0)] = 0.0
     return EvidenceGrid(log_odds, (-(half + 0.5), -(half + 0.5)), cell, depth)
 
 
-def test_single_slice_is_extruded_between_surface_and_below():
-    grid = _box_grid(1.0, depth=0.6)
-    volume = stack_slices(MapResult((grid,)), dz_m=0.1, extend_m=1.0)
-    assert volume.depths_m[0] == 0.0  # clamped at the water surface
-    assert_allclose(volume.depths_m[-1], 1.6)
-    assert_allclose(volume.probability[0], grid.probability(), rtol=1e-6)
-    assert np.all(volume.probability == volume.probability[:1])
+def _poses(n: int = 1) -> Poses:
+    return Poses(np.zeros((n, 2)), np.zeros(n), np.ones(n, dtype=bool), ("",) * n, 0)
 
 
-def test_several_slices_move_the_wall_between_them():
-    shallow, deep = _box_grid(1.0, depth=1.0), _box_grid(2.0, depth=3.0)
-    volume = stack_slices(MapResult((deep, shallow)), dz_m=0.5, extend_m=0.0)
-    assert volume.slice_depths_m == (1.0, 3.0)
-    middle = volume.probability[list(volume.depths_m).index(2.0)]
-    row = middle[middle.shape[0] // 2]
-    xs = volume.origin_xy_m[0] + (np.arange(len(row)) + 0.5) * volume.cell_m
-    wall_x = xs[np.argmax(np.where(xs > 0, row, -1))]
-    assert abs(wall_x - 1.5) <= 2 * volume.cell_m  # halfway between the walls at 1 m and 2 m
+def test_surface_follows_the_walls_of_one_slice_extruded():
+    mesh = wall_surface(MapResult((_box_grid(1.0, depth=0.6),)), _poses(), [0.6])
+    x0, x1, y0, y1 = mesh.points[:, 0].min(), mesh.points[:, 0].max(), mesh.points[:, 1].min(), mesh.points[:, 1].max()
+    assert_allclose([x0, x1, y0, y1], [-1.0, 1.0, -1.0, 1.0], atol=0.06)  # the walls' inner faces
+    assert mesh.depth_range_m == (0.0, 1.6)  # 1 m above (not past the surface) and below
+    assert mesh.n_triangles <= SurfaceParams().max_faces
 
 
-def test_isosurface_wraps_the_walls():
-    build = make_site_build()
-    config = ReportConfig()
-    volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
-    mesh = build_mesh(volume, config)
-    x0, x1, y0, y1, z0, z1 = mesh.bounds
-    # outer faces: the wall cells (±1 cell) plus the one-cell display dilation on each side
-    assert 0.05 < (x1 - x0) - WIDTH_M < 0.35 and 0.05 < (y1 - y0) - LENGTH_M < 0.35
-    assert z1 <= -0.4 and z0 >= -2.6  # 1.5 m ± 1 m
-    assert mesh.n_cells <= config.max_faces
-    assert "depth_m" in mesh.point_data
+def test_ghost_echoes_outside_the_walls_leave_no_posts():
+    grid = _box_grid(1.0, depth=1.0)
+    log_odds = grid.log_odds.copy()
+    log_odds[2:4, 2:4] = 4.0  # an isolated echo in unknown space beyond the wall
+    log_odds[20:22, 20:22] = 4.0  # and one in the water (a fish, the tether)
+    ghosts = EvidenceGrid(log_odds, grid.origin_xy_m, grid.cell_m, grid.depth_m)
+    clean = wall_surface(MapResult((grid,)), _poses(), [1.0])
+    spooked = wall_surface(MapResult((ghosts,)), _poses(), [1.0])
+    assert_allclose(spooked.points.min(axis=0), clean.points.min(axis=0), atol=1e-6)
+    assert spooked.n_triangles == clean.n_triangles
+
+
+def test_an_unseen_wall_is_left_open_not_invented():
+    mesh = wall_surface(MapResult((_box_grid(1.0, depth=1.0, open_side=True),)), _poses(), [1.0])
+    centroids = mesh.points[mesh.triangles].mean(axis=1)
+    east = (centroids[:, 0] > 0.8) & (np.abs(centroids[:, 1]) < 0.6)
+    assert not east.any()  # the middle of the unseen wall is farther than max_gap_m / 2 from any seen wall
+    assert (centroids[:, 0] < -0.8).any()  # the seen west wall is there
+
+
+def test_walls_curve_through_several_slices_like_a_bell():
+    grids = (_box_grid(1.0, depth=1.0), _box_grid(2.0, depth=2.0), _box_grid(2.5, depth=3.0))
+    mesh = wall_surface(MapResult(grids), _poses(3), [1.0, 2.0, 3.0])
+    assert mesh.depth_range_m == (1.0, 3.0)  # nothing was seen above or below the slices
+    for depth, half in ((1.0, 1.0), (2.0, 2.0), (3.0, 2.5)):
+        ring = mesh.points[np.abs(-mesh.points[:, 2] - depth) < 0.05]
+        assert abs(ring[:, 0].max() - half) < 0.1, depth
+    between = mesh.points[np.abs(-mesh.points[:, 2] - 1.5) < 0.05]
+    assert 1.0 < between[:, 0].max() < 2.0  # the wall moves smoothly from one outline to the next
 
 
 # ------------------------------------------------------------------------------------------ files
@@ -215,7 +228,7 @@ def test_site_page_shows_tables_and_unplaced_scans(catalog):
     assert 'id="dimension-table"' in html
     for text in ("Width", "Length", "Difference (m)", "Probe std (m)", "Scans not placed, and why",
                  "no converged match links it to the reference scan", "Parameters and provenance",
-                 "pf-pairwise", "model.glb", "result.json", "dimensions.csv", "interpolated between them"):
+                 "pf-pairwise", "model.glb", "result.json", "dimensions.csv", "walls curved through them"):
         assert text in html, text
 
 
@@ -349,23 +362,6 @@ def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
     assert first.keys() == second.keys()
     assert [name for name in first if first[name] != second[name]] == []
     assert zlib.crc32((again / "index.html").read_bytes()) == zlib.crc32((root / "pool" / "index.html").read_bytes())
-
-
-def test_specks_are_dropped_from_the_mesh():
-    build = make_site_build()
-    grid = build.map_result.grids[0]
-    log_odds = grid.log_odds.copy()
-    log_odds[2, 2] = 4.0  # one isolated echo outside the walls
-    speckled = MapResult((EvidenceGrid(log_odds, grid.origin_xy_m, grid.cell_m, grid.depth_m),))
-    config = ReportConfig()
-    volume = stack_slices(speckled, dz_m=config.dz_m, extend_m=config.extend_m)
-    kept = build_mesh(volume, config.model_copy(update={"min_component_fraction": 0.0, "min_blob_cells": 0}))
-    by_blob = build_mesh(volume, config)
-    by_piece = build_mesh(volume, config.model_copy(update={"min_blob_cells": 0, "dilate_cells": 0}))
-    x0 = grid.origin_xy_m[0] + 2 * grid.cell_m
-    assert kept.bounds[0] <= x0 + grid.cell_m  # the speck reaches out to the corner
-    assert by_blob.bounds[0] > x0 + 5 * grid.cell_m  # removed from the volume (blob of 1 cell)
-    assert by_piece.bounds[0] > x0 + 5 * grid.cell_m  # removed from the mesh (a tiny separate piece)
 
 
 def test_download_list_prints_no_size_for_the_timed_result(tmp_path):

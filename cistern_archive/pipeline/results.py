@@ -133,3 +133,4 @@ class SiteBuild:
     poses: Poses | None = None
     map_result: MapResult | None = None
     table: DimensionTable | None = None
+    mesh: Any = None  # cistern_archive.grid.surface.SurfaceMesh: the wall surface of the mesh step

@@ -186,6 +186,9 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
             build.table = _run("compare", f"{len(record.references)} reference dimensions",
                                lambda: comparator.instance.compare(build.map_result, build.poses, record.references,
                                                                    record.station_index(), comparator.params))
+        with timer.stage("mesh"):
+            build.mesh = _run("mesh", f"{len(build.map_result.grids)} depth slices",
+                              lambda: mesh_step(build))
     except StageError as exc:
         build.result.status = "failed"
         build.result.failure = StageFailure(
@@ -194,6 +197,14 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
         )
     build.result = assemble_result(build, loaded, stages, timer.timings)
     return build
+
+
+def mesh_step(build: SiteBuild):
+    """The wall surface of the site from its evidence grids (:func:`cistern_archive.grid.surface.wall_surface`),
+    or ``None`` when no wall was seen."""
+    from cistern_archive.grid.surface import wall_surface
+
+    return wall_surface(build.map_result, build.poses, [s.depth_m for s in build.range_scans])
 
 
 def _pair_label(record: SiteRecord, i: int, j: int) -> str:

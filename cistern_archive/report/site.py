@@ -19,7 +19,6 @@ import numpy as np
 from cistern_archive import __version__
 from cistern_archive.errors import CisternError
 from cistern_archive.evaluation import scan_position_errors
-from cistern_archive.grid.volume import stack_slices
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import figures as fig
@@ -224,25 +223,24 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
 
 
 def build_model(build: SiteBuild, site_dir: Path, config: ReportConfig) -> ModelOutcome:
-    """Volume → mesh → PLY and GLB exports → off-screen renders (when rendering works here)."""
+    """The pipeline's wall surface → PLY and GLB exports → off-screen renders (when rendering works here)."""
     if not config.model:
         return ModelOutcome(missing="The 3D model was not requested for this report.")
     if build.map_result is None or not build.map_result.grids:
         return ModelOutcome(missing="No 3D model: the build stopped before the mapping stage.")
-    volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
-    mesh = model3d.build_mesh(volume, config)
-    if mesh is None:
-        return ModelOutcome(missing=f"No 3D model: no cell of the map reaches occupancy {config.iso_level:g}.")
-    depth_range = (float(volume.depths_m[0]), float(volume.depths_m[-1]))
+    if build.mesh is None:
+        return ModelOutcome(missing="No 3D model: no wall was seen next to the water the vehicle was in.")
+    surface = build.mesh
+    mesh = model3d.render_mesh(surface)
+    depth_range = surface.depth_range_m
     files = {"mesh-ply": model3d.export_ply(mesh, site_dir / "model.ply").name,
              "mesh-gltf": write_glb(site_dir / "model.glb", mesh, colormap=model3d.COLORMAP,
                                     depth_range=depth_range).name}
-    n = len(volume.slice_depths_m)
-    note = (f"one slice at {volume.slice_depths_m[0]:.2f} m extruded vertically from {depth_range[0]:.2f} m to "
-            f"{depth_range[1]:.2f} m, as in the paper" if n == 1 else
-            f"{n} slices from {volume.slice_depths_m[0]:.2f} m to {volume.slice_depths_m[-1]:.2f} m, "
-            "walls interpolated between them")
-    note += f"; {mesh.n_cells} triangles"
+    depths = surface.slice_depths_m
+    note = (f"one slice at {depths[0]:.2f} m extruded vertically from {depth_range[0]:.2f} m to "
+            f"{depth_range[1]:.2f} m, as in the paper" if len(depths) == 1 else
+            f"{len(depths)} slices from {depths[0]:.2f} m to {depths[-1]:.2f} m, walls curved through them")
+    note += f"; {surface.n_triangles} triangles"
     reason = offscreen.probe()
     if reason:
         return ModelOutcome(files=files, note=note, missing=f"3D views not rendered: {reason}. The mesh is still "
@@ -476,7 +474,7 @@ def render_site(build: SiteBuild, site_dir: Path, *, config: ReportConfig | None
     (site_dir / "result.json").write_text(result.model_dump_json(indent=2) + "\n", encoding="utf-8")
     context = page_context(SiteBuild(result=result, record=build.record, raw_scans=build.raw_scans,
                                      range_scans=build.range_scans, matches=build.matches, poses=build.poses,
-                                     map_result=build.map_result, table=build.table),
+                                     map_result=build.map_result, table=build.table, mesh=build.mesh),
                            labels, drawn, model, _downloads(artifacts, site_dir), site_dir)
     (site_dir / "index.html").write_text(render_site_page(**context), encoding="utf-8")
     return artifacts
