@@ -246,7 +246,7 @@ def make_site_build(
                            yaw_rad=0.0, depth_m=1.5, placed=bool(placed[k]), reason=reasons[k],
                            truth_x_m=float(truth_d[k, 0]), truth_y_m=float(truth_d[k, 1])) for k in range(n)]
     labels = [s.id for s in scans_json]
-    dimensions = [dimension_result(r, 10, labels) for r in rows]
+    dimensions = [dimension_result(r, 10, labels, cell_m=CELL_M, poses=poses) for r in rows]
     status, status_reasons = site_status(failed_stage=None, scans_placed=list(placed), labels=labels, unmeasured=[])
     result = SiteResult(
         site_id=site_id, name=name, status=status, status_reasons=status_reasons, scans=scans_json,

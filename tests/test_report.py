@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import shutil
 import struct
 import zlib
 from html.parser import HTMLParser
@@ -218,7 +219,7 @@ def test_site_folder_holds_every_artifact(catalog):
     read_glb((root / "pool" / "model.glb").read_bytes())
     assert (root / "pool" / "model.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
     rows = (root / "pool" / "dimensions.csv").read_text().splitlines()
-    assert rows[0].startswith("name,reference_kind,depth_m,map_m,reference_m,diff_m") and len(rows) == 3
+    assert rows[0].startswith("name,reference_kind,depth_m,map_m,ci95_m,reference_m,diff_m") and len(rows) == 3
     assert "slices" in artifacts["bell"] and "mesh-ply" in artifacts["bell"]
 
 
@@ -401,3 +402,79 @@ def test_parameters_read_as_key_and_value(catalog):
     root, _ = catalog
     html = (root / "pool" / "index.html").read_text()
     assert "<dt>tau_pw</dt><dd>6</dd>" in html and "{&#34;" not in html and '{"' not in html
+
+
+def test_dimensions_carry_a_95_percent_interval(catalog):
+    root, _ = catalog
+    result = json.loads((root / "pool" / "result.json").read_text())
+    for d in result["dimensions"]:
+        assert 0.03 < d["ci95_m"] < 0.1, d  # the cell term alone is 1.96 × 0.05 / √6 = 0.040 m
+    html = (root / "pool" / "index.html").read_text()
+    width = result["dimensions"][0]
+    assert f"{width['map_m']:.3f} ± {width['ci95_m']:.3f}" in html
+
+
+def test_interval_combines_spread_cell_and_pose():
+    from cistern_archive.pipeline.intervals import ci95_half_width, pose_term
+
+    assert ci95_half_width([3.5], 0.05) == pytest.approx(1.959964 * 0.05 / 6 ** 0.5)
+    wide = ci95_half_width([3.4, 3.6, 3.5, 3.45, 3.55], 0.05)
+    assert wide > ci95_half_width([3.5, 3.5, 3.5, 3.5, 3.5], 0.05)
+    cov = np.zeros((2, 3, 3))
+    cov[:, 0, 0] = 0.02 ** 2  # 2 cm along x for both scans
+    poses = Poses(np.array([[0.0, 0.0], [3.0, 0.0]]), np.zeros(2), np.ones(2, dtype=bool), ("", ""), 0, cov)
+    across = [(-0.2, 0.0, 3.2, 0.0)]  # from the first scan's wall to the second's
+    assert pose_term(across, poses) == pytest.approx(1.959964 * (2 * 0.02 ** 2) ** 0.5)
+    assert pose_term([(-0.2, 0.0, 0.3, 0.0)], poses) == 0.0  # one scan saw both walls
+    assert pose_term(across, Poses(poses.xy_m, poses.yaw_rad, poses.placed, poses.reasons, 0)) == 0.0
+
+
+def test_plan_round_trips_through_dxf_and_svg(catalog):
+    import xml.etree.ElementTree as ET
+
+    import ezdxf
+
+    root, artifacts = catalog
+    for site, depths in (("pool", [1.5]), ("bell", [1.0, 2.0, 3.0])):
+        doc = ezdxf.readfile(root / site / artifacts[site]["plan-dxf"])
+        assert doc.units == ezdxf.units.M
+        layers = sorted({e.dxf.layer for e in doc.modelspace().query("LWPOLYLINE")})
+        assert len(layers) == len(depths), (site, layers)
+        svg = ET.parse(root / site / artifacts[site]["plan-svg"]).getroot()
+        ns = {"svg": "http://www.w3.org/2000/svg"}
+        assert svg.find(".//svg:g[@id='scale-bar']", ns) is not None
+        assert svg.find(".//svg:g[@id='north-arrow']", ns) is not None
+        assert len(svg.findall(".//svg:g[@stroke]", ns)) == len(depths)
+    doc = ezdxf.readfile(root / "pool" / "plan.dxf")
+    points = np.concatenate([np.array(e.get_points("xy")) for e in doc.modelspace().query("LWPOLYLINE")])
+    pool = make_site_build()  # the walls' inner faces, in the frame of station 1
+    x0, y0 = 0.0 - pool.poses.xy_m[0, 0] - 1.0, -1.4
+    assert points[:, 0].max() - points[:, 0].min() == pytest.approx(WIDTH_M, abs=0.12)
+    assert points[:, 1].max() - points[:, 1].min() == pytest.approx(LENGTH_M, abs=0.12)
+    html = (root / "pool" / "index.html").read_text()
+    assert 'href="plan.dxf"' in html and 'href="plan.svg"' in html
+
+
+def test_report_pdf_is_printed_and_pinned(catalog, tmp_path):
+    from cistern_archive.report.pdf import chromium_path, pin_dates, print_pdf
+
+    if chromium_path() is None:
+        pytest.skip("Chromium not found (Debian: apt-get install chromium)")
+    root, artifacts = catalog
+    data = (root / "pool" / artifacts["pool"]["report-pdf"]).read_bytes()
+    assert data.startswith(b"%PDF-") and data.rstrip().endswith(b"%%EOF")
+    assert len(re.findall(rb"/Type\s*/Page\b", data)) >= 2  # the whole page, on several sheets
+    assert b"/CreationDate (D:20231114221320+00'00')" in data  # SOURCE_DATE_EPOCH of the tests, not the clock
+    # every cross-reference entry points at its object after the links were made relative
+    start = int(re.search(rb"startxref\n(\d+)", data[-200:]).group(1))
+    assert data[start:start + 4] == b"xref"
+    rows = data[start:].split(b"\n")[2:2 + int(re.match(rb"xref\n0 (\d+)\n", data[start:]).group(1))]
+    assert all(data[int(r[:10]):].startswith(b"%d 0 obj" % k) for k, r in enumerate(rows) if r.endswith(b" n "))
+    links = re.findall(rb"/URI \(([^)]*)\)", data)
+    assert b"grid.npz" in links and b"../index.html" in links and not any(b"file:" in u for u in links)
+    copy = tmp_path / "pool"
+    shutil.copytree(root / "pool", copy)  # printed elsewhere: the same bytes
+    assert print_pdf(copy / "index.html", tmp_path / "again.pdf", when=build_time_from_env()) == ""
+    assert (tmp_path / "again.pdf").read_bytes() == data
+    assert 'href="report.pdf"' in (root / "pool" / "index.html").read_text()
+    assert pin_dates(b"/CreationDate (D:20260101120000+00'00')", None) == b"/CreationDate (D:19700101000000+00'00')"

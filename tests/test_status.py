@@ -110,4 +110,4 @@ def test_build_site_announces_each_stage(partial_catalog):
 
     stages: list[str] = []
     build_site(load_record(partial_catalog / "sites" / "cistern-000.yaml", partial_catalog), on_stage=stages.append)
-    assert stages == ["configure", "load", "segment", "match", "localize", "map", "compare"]
+    assert stages == ["configure", "load", "segment", "match", "localize", "map", "compare", "mesh"]

@@ -56,6 +56,8 @@ class PairResult(Model):
 class DimensionResult(Model):
     name: str
     map_m: float | None
+    ci95_m: float | None = Field(default=None, description="half-width of the 95 % interval of map_m "
+                                                           "(cistern_archive.pipeline.intervals)")
     reference_m: float
     reference_kind: Literal["mosaic", "truth"]
     diff_m: float | None

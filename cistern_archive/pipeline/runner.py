@@ -31,6 +31,7 @@ from cistern_archive.pipeline.contracts import (
     DimensionRow,
     MatchGuess,
     MatchResult,
+    Poses,
     StageParams,
     accepts_guess,
 )
@@ -45,6 +46,7 @@ from cistern_archive.pipeline.results import (
     SiteResult,
     StageFailure,
 )
+from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.status import label_indices, site_status, weakness
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.scan import RangeScan, Scan
@@ -287,7 +289,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         for m in build.matches
     ]
     if build.table is not None:
-        result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels)
+        result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels,
+                                              cell_m=_cell_at(build, row.depth_m), poses=poses)
                              for k, row in enumerate(build.table.rows)]
         result.dimension_stats = {k: _finite(v) for k, v in sorted(build.table.stats.items())}
     if build.map_result is not None:
@@ -318,16 +321,26 @@ def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
     return same[0].measure.repeats if same else 0
 
 
-def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str]) -> DimensionResult:
+def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *, cell_m: float | None = None,
+                     poses: Poses | None = None) -> DimensionResult:
     """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`)
-    when it is measured."""
+    and with its 95 % interval (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of
+    ``cell_m``) when it is measured."""
     map_m, std = _finite(row.map_m), _finite(row.probe_std_m)
     weak = weakness(len(row.probes), requested, std) if map_m is not None else ""
-    return DimensionResult(name=row.name, map_m=map_m, reference_m=row.reference_m,
+    ci = None if map_m is None or cell_m is None else ci95_half_width(
+        row.probes, cell_m, [line for line in row.probe_lines if line is not None], poses)
+    return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
                            reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
                            depth_m=_finite(row.depth_m) or 0.0, probe_std_m=std,
                            probes_m=[float(p) for p in row.probes], probes_requested=requested,
                            weak=bool(weak), weak_reason=weak, note=label_indices(row.note, labels))
+
+
+def _cell_at(build: SiteBuild, depth_m: float) -> float | None:
+    """Cell size of the slice nearest ``depth_m``."""
+    grids = build.map_result.grids if build.map_result is not None else ()
+    return min(grids, key=lambda g: abs(g.depth_m - depth_m)).cell_m if grids else None
 
 
 def _unmeasured(record: SiteRecord, dimensions: Sequence[DimensionResult]) -> list[str]:

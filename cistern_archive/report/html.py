@@ -58,6 +58,12 @@ def number(value: float | None, digits: int = 3) -> str:
     return "\u2212" + text[1:] if text.startswith("-") and float(text) != 0 else text.lstrip("-")
 
 
+def with_interval(value: float | None, ci95: float | None, digits: int = 3) -> str:
+    """``3.470 ± 0.060``: a value with the half-width of its 95 % interval (just the value without one)."""
+    text = number(value, digits)
+    return text if ci95 is None or value is None else f"{text} ± {number(ci95, digits)}"
+
+
 def probe_count(dimension: Any) -> str:
     """``8 of 10``: the probes a dimension's value rests on, of those the record asked for
     (a :class:`~cistern_archive.pipeline.results.DimensionResult`)."""

@@ -17,7 +17,7 @@ from cistern_archive.pipeline.results import DimensionResult, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import build_time_from_env, format_time
-from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_index_page, signed
+from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_index_page, signed, with_interval
 
 Status = Literal["ok", "partial", "failed", "skipped"]
 
@@ -119,7 +119,9 @@ MOSAIC_COLUMNS = (
     TableColumn("mosaic_diff", "Map − mosaic (m)", "signed difference to the mosaic, as in Table IV of McVicker et al."),
 )
 COMMON_COLUMNS = (
-    TableColumn("map", "Map (m)", "mean of the probe lines measured wall to wall in the evidence grid"),
+    TableColumn("map", "Map (m)", "mean of the probe lines measured wall to wall in the evidence grid, "
+                                  "± the half-width of its 95 % interval (probe spread, grid cell and, where "
+                                  "the localizer gives it, the pose uncertainty of the scans that saw the walls)"),
 )
 TAIL_COLUMNS = (
     TableColumn("probes", "Probes", "probes the value rests on, of those the record asked for"),
@@ -155,7 +157,7 @@ def difference_table(entries: Sequence[IndexEntry]) -> tuple[list[TableColumn], 
         for k, (name, kinds) in enumerate(pairs):
             truth, mosaic = kinds.get("truth"), kinds.get("mosaic")
             shown = truth or mosaic
-            cells = {"map": number(shown.map_m), "truth": number(truth.reference_m) if truth else "—",
+            cells = {"map": with_interval(shown.map_m, shown.ci95_m), "truth": number(truth.reference_m) if truth else "—",
                      "truth_diff": signed(truth.diff_m) if truth else "—", "truth_percent": signed(_percent(truth), 2),
                      "mosaic": number(mosaic.reference_m) if mosaic else "—",
                      "mosaic_diff": signed(mosaic.diff_m) if mosaic else "—",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import figures as fig
-from cistern_archive.report import model3d, offscreen
+from cistern_archive.report import model3d, offscreen, pdf, plan
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import (
     build_time_from_env,
@@ -33,7 +33,7 @@ from cistern_archive.report.files import (
     write_npz,
 )
 from cistern_archive.report.gltf import write_glb
-from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_site_page, signed
+from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_site_page, signed, with_interval
 from cistern_archive.sonar.scan import compass_deg_from_yaw
 
 SECTION_TITLES = {
@@ -141,9 +141,9 @@ def write_arrays(build: SiteBuild, site_dir: Path) -> dict[str, str]:
 def write_tables(result: SiteResult, labels: list[str], site_dir: Path) -> dict[str, str]:
     """CSV files of the dimension, pair and scan tables."""
     write_csv(site_dir / "dimensions.csv",
-              ["name", "reference_kind", "depth_m", "map_m", "reference_m", "diff_m", "diff_percent",
+              ["name", "reference_kind", "depth_m", "map_m", "ci95_m", "reference_m", "diff_m", "diff_percent",
                "probe_std_m", "n_probes", "probes_m"],
-              [[d.name, d.reference_kind, d.depth_m, d.map_m, d.reference_m, d.diff_m,
+              [[d.name, d.reference_kind, d.depth_m, d.map_m, d.ci95_m, d.reference_m, d.diff_m,
                 None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m, d.probe_std_m, len(d.probes_m),
                 ";".join(format_number(p, 4) for p in d.probes_m)] for d in result.dimensions])
     write_csv(site_dir / "pairs.csv",
@@ -266,7 +266,7 @@ def _dimension_rows(result: SiteResult) -> list[dict[str, str]]:
     rows = []
     for d in result.dimensions:
         percent = None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m
-        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": number(d.map_m),
+        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": with_interval(d.map_m, d.ci95_m),
                      "reference": number(d.reference_m), "diff": signed(d.diff_m), "percent": signed(percent, 2),
                      "std": number(d.probe_std_m), "probes": probe_count(d), "weak": d.weak,
                      "note": "; ".join(n for n in (d.weak_reason and f"weak: {d.weak_reason}", d.note) if n)})
@@ -405,6 +405,9 @@ DOWNLOADS = (
     ("grid", "Evidence grids", "log-odds of every depth slice with origin, cell size and depth (NumPy .npz)"),
     ("mesh-ply", "3D model (PLY)", "triangle mesh, map frame in metres, z up"),
     ("mesh-gltf", "3D model (glTF binary)", "self-contained .glb coloured by depth, for any glTF viewer"),
+    ("plan-dxf", "Plan (DXF)", "wall outline at every mapped depth, one layer per depth, metres, for CAD"),
+    ("plan-svg", "Plan (SVG)", "the same outlines north up with a scale bar and north arrow, for print"),
+    ("report-pdf", "Report (PDF)", "this page printed, for the archive"),
     ("result", "Result (JSON)", "the site's result.json: poses, pairs, dimensions, provenance, timings"),
     ("dimensions-csv", "Dimension table (CSV)", "map vs reference for every measured dimension"),
     ("pairs-csv", "Pair table (CSV)", "every pair match"),
@@ -412,9 +415,10 @@ DOWNLOADS = (
 )
 
 
-UNSIZED_DOWNLOADS = frozenset({"result"})
+UNSIZED_DOWNLOADS = frozenset({"result", "report-pdf"})
 """Downloads whose size is not printed: ``result.json`` holds the build's timings, so its size changes
-from build to build and would make the page differ while nothing else has."""
+from build to build and would make the page differ while nothing else has; ``report.pdf`` is printed
+from the finished page."""
 
 
 def _downloads(artifacts: dict[str, str], site_dir: Path) -> list[dict[str, str]]:
@@ -466,18 +470,38 @@ def render_site(build: SiteBuild, site_dir: Path, *, config: ReportConfig | None
         artifacts[Path(f.file).stem] = f.file
     model = build_model(build, site_dir, config)
     artifacts.update(model.files)
+    artifacts.update(write_plan(build, site_dir))
     artifacts.update(write_tables(build.result, labels, site_dir))
     artifacts["result"] = "result.json"
     artifacts["page"] = "index.html"
-    artifacts = dict(sorted(artifacts.items()))
-    result = build.result.model_copy(update={"artifacts": artifacts})
-    (site_dir / "result.json").write_text(result.model_dump_json(indent=2) + "\n", encoding="utf-8")
-    context = page_context(SiteBuild(result=result, record=build.record, raw_scans=build.raw_scans,
-                                     range_scans=build.range_scans, matches=build.matches, poses=build.poses,
-                                     map_result=build.map_result, table=build.table, mesh=build.mesh),
-                           labels, drawn, model, _downloads(artifacts, site_dir), site_dir)
-    (site_dir / "index.html").write_text(render_site_page(**context), encoding="utf-8")
+    if config.pdf and pdf.chromium_path() is not None:
+        artifacts["report-pdf"] = "report.pdf"
+
+    def write_page(artifacts: dict[str, str]) -> dict[str, str]:
+        artifacts = dict(sorted(artifacts.items()))
+        result = build.result.model_copy(update={"artifacts": artifacts})
+        (site_dir / "result.json").write_text(result.model_dump_json(indent=2) + "\n", encoding="utf-8")
+        context = page_context(replace(build, result=result), labels, drawn, model,
+                               _downloads(artifacts, site_dir), site_dir)
+        (site_dir / "index.html").write_text(render_site_page(**context), encoding="utf-8")
+        return artifacts
+
+    artifacts = write_page(artifacts)
+    if "report-pdf" in artifacts and pdf.print_pdf(site_dir / "index.html", site_dir / "report.pdf",
+                                                   when=build_time_from_env()):
+        artifacts = write_page({k: v for k, v in artifacts.items() if k != "report-pdf"})
     return artifacts
+
+
+def write_plan(build: SiteBuild, site_dir: Path) -> dict[str, str]:
+    """``plan.dxf`` and ``plan.svg``: the wall outline at every mapped depth (:mod:`cistern_archive.report.plan`)."""
+    if build.mesh is None:
+        return {}
+    outlines = plan.outlines(build.mesh)
+    if not outlines:
+        return {}
+    return {"plan-dxf": plan.write_dxf(site_dir / "plan.dxf", outlines).name,
+            "plan-svg": plan.write_svg(site_dir / "plan.svg", outlines, title=f"{build.record.name}: plan").name}
 
 
 IMG_SRC = re.compile(r'<img[^>]+src="([^"]+)"')
