@@ -22,5 +22,6 @@ class ReportConfig(BaseModel):
     # 3D model
     model: bool = Field(default=True, description="render and export the 3D model (made by the pipeline's mesh step)")
     window_px: tuple[int, int] = (800, 600)
+    viewer: bool = Field(default=True, description="the interactive 3D view (three.js, vendored) beside the renders")
     pdf: bool = Field(default=True, description="print the page to report.pdf with headless Chromium, when installed")
     max_page_bytes: int = Field(default=5_000_000, gt=0, description="budget of a site page with its images")

@@ -22,7 +22,7 @@ from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import figures as fig
-from cistern_archive.report import model3d, offscreen, pdf, plan
+from cistern_archive.report import model3d, offscreen, pdf, plan, viewer
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import (
     build_time_from_env,
@@ -243,8 +243,12 @@ def build_model(build: SiteBuild, site_dir: Path, config: ReportConfig) -> Model
     note += f"; {surface.n_triangles} triangles"
     reason = offscreen.probe()
     if reason:
+        if config.viewer:
+            files.update(viewer.write_viewer(site_dir, site_dir / files["mesh-gltf"]))
         return ModelOutcome(files=files, note=note, missing=f"3D views not rendered: {reason}. The mesh is still "
                                                             "available under Downloads.")
+    if config.viewer:
+        files.update(viewer.write_viewer(site_dir, site_dir / files["mesh-gltf"]))
     rendered = model3d.render_views(mesh, site_dir, config, depth_range=depth_range)
     views = [fig.FigureFile(f"model-{v.key}", rendered[v.key], v.title, v.alt, v.caption)
              for v in model3d.VIEWS if v.key in rendered]
@@ -384,6 +388,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "dimension_stats": _stat_rows(result.dimension_stats),
         "figures": figures,
         "views": [views[id(f)] for f in model.views],
+        "viewer_scripts": viewer.script_sources() if "viewer-model" in model.files else [],
         "model_note": model.note,
         "model_missing": model.missing,
         "dimensions": _dimension_rows(result),
