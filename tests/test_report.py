@@ -21,7 +21,7 @@ from cistern_archive.report import ReportConfig, page_bytes, render_site
 from cistern_archive.report.files import build_time_from_env, slug, unique_slugs, write_npz
 from cistern_archive.report.gltf import glb_bytes, read_glb
 from cistern_archive.report.html import signed
-from report_fixtures import LATITUDE, LENGTH_M, SITES, WIDTH_M, make_site_build, render_catalog
+from report_fixtures import LATITUDE, LENGTH_M, LONGITUDE, SITES, WIDTH_M, make_site_build, render_catalog
 
 @pytest.fixture(scope="module")
 def catalog(tmp_path_factory) -> tuple[Path, dict[str, dict[str, str]]]:
@@ -359,7 +359,8 @@ def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
     assert out == "" and err == ""  # no X / VTK warnings on a machine without a display
 
     def digest(folder: Path) -> dict[str, str]:
-        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+        return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(folder.rglob("*")) if p.is_file()}
 
     first, second = digest(root / "pool"), digest(again)
     assert first.keys() == second.keys()
@@ -449,8 +450,7 @@ def test_plan_round_trips_through_dxf_and_svg(catalog):
         assert len(svg.findall(".//svg:g[@stroke]", ns)) == len(depths)
     doc = ezdxf.readfile(root / "pool" / "plan.dxf")
     points = np.concatenate([np.array(e.get_points("xy")) for e in doc.modelspace().query("LWPOLYLINE")])
-    pool = make_site_build()  # the walls' inner faces, in the frame of station 1
-    x0, y0 = 0.0 - pool.poses.xy_m[0, 0] - 1.0, -1.4
+    # the outline runs along the walls' inner faces
     assert points[:, 0].max() - points[:, 0].min() == pytest.approx(WIDTH_M, abs=0.12)
     assert points[:, 1].max() - points[:, 1].min() == pytest.approx(LENGTH_M, abs=0.12)
     html = (root / "pool" / "index.html").read_text()
@@ -480,3 +480,23 @@ def test_report_pdf_is_printed_and_pinned(catalog, tmp_path):
     assert (tmp_path / "again.pdf").read_bytes() == data
     assert 'href="report.pdf"' in (root / "pool" / "index.html").read_text()
     assert pin_dates(b"/CreationDate (D:20260101120000+00'00')", None) == b"/CreationDate (D:19700101000000+00'00')"
+
+
+def test_geotiff_only_for_a_georeferenced_unredacted_site(catalog):
+    import rasterio
+    from rasterio.warp import transform
+
+    root, artifacts = catalog
+    assert "grid-tif" not in artifacts["pool"] and not (root / "pool" / "grid.tif").exists()  # redacted
+    with rasterio.open(root / "bell" / artifacts["bell"]["grid-tif"]) as tif:
+        assert tif.count == 3 and tif.crs.to_epsg() == 32633  # Malta: UTM zone 33 N
+        assert tif.res == pytest.approx((0.05, 0.05))
+        band = tif.read(1)
+        assert np.isnan(band).any() and np.nanmax(band) > 0.9 and np.nanmin(band) < 0.2
+        # the reference scan (map origin) sits at the record's coordinates
+        (east,), (north,) = transform("EPSG:4326", tif.crs, [LONGITUDE], [LATITUDE])
+        row, col = tif.index(east, north)
+        assert 0 <= row < tif.height and 0 <= col < tif.width
+        assert "depth" in tif.descriptions[0]
+    world = (root / "bell" / "grid.tfw").read_text().split()
+    assert [float(world[0]), float(world[3])] == [0.05, -0.05]

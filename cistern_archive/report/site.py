@@ -22,7 +22,7 @@ from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import figures as fig
-from cistern_archive.report import model3d, offscreen, pdf, plan, viewer
+from cistern_archive.report import geotiff, model3d, offscreen, pdf, plan, viewer
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import (
     build_time_from_env,
@@ -410,6 +410,8 @@ DOWNLOADS = (
     ("grid", "Evidence grids", "log-odds of every depth slice with origin, cell size and depth (NumPy .npz)"),
     ("mesh-ply", "3D model (PLY)", "triangle mesh, map frame in metres, z up"),
     ("mesh-gltf", "3D model (glTF binary)", "self-contained .glb coloured by depth, for any glTF viewer"),
+    ("grid-tif", "Evidence grid (GeoTIFF)", "occupancy per depth slice in its UTM zone (WGS 84), for GIS"),
+    ("grid-tfw", "World file of the GeoTIFF", "the same georeferencing for software that reads world files"),
     ("plan-dxf", "Plan (DXF)", "wall outline at every mapped depth, one layer per depth, metres, for CAD"),
     ("plan-svg", "Plan (SVG)", "the same outlines north up with a scale bar and north arrow, for print"),
     ("report-pdf", "Report (PDF)", "this page printed, for the archive"),
@@ -476,6 +478,11 @@ def render_site(build: SiteBuild, site_dir: Path, *, config: ReportConfig | None
     model = build_model(build, site_dir, config)
     artifacts.update(model.files)
     artifacts.update(write_plan(build, site_dir))
+    if build.map_result is not None and build.map_result.grids and geotiff.georeferenced(build.record):
+        location = build.record.location
+        tif, world = geotiff.write_geotiff(site_dir / "grid.tif", build.map_result, location.latitude,
+                                           location.longitude)
+        artifacts.update({"grid-tif": tif.name, "grid-tfw": world.name})
     artifacts.update(write_tables(build.result, labels, site_dir))
     artifacts["result"] = "result.json"
     artifacts["page"] = "index.html"
