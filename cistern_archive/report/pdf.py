@@ -20,7 +20,10 @@ from urllib.parse import unquote, urlsplit
 
 CHROMIUM_ENV = "CISTERN_CHROMIUM"
 CHROMIUM_ARGS = ("--headless", "--no-sandbox", "--disable-gpu", "--no-pdf-header-footer", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync")
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--run-all-compositor-stages-before-draw", "--virtual-time-budget=10000")
+"""``--virtual-time-budget``: print once the page and every image it shows have loaded, however busy
+the machine."""
 PRINT_TIMEOUT_S = 120.0
 _PDF_DATE = re.compile(rb"/(CreationDate|ModDate) \(D:\d{14}[^)]*\)")
 
