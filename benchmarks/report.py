@@ -40,7 +40,7 @@ def catalog_build(site_id: str, catalog: Path):
         loaded = load_record(path, catalog)
         if loaded.record.id == site_id:
             build = build_site(loaded)
-            if build.result.status != "ok":
+            if build.result.status == "failed":
                 raise SystemExit(f"{site_id}: the pipeline failed: {build.result.error}")
             return build
     raise SystemExit(f"no site {site_id!r} in {catalog}")

@@ -24,7 +24,6 @@ from cistern_archive.pipeline.contracts import (
     Poses,
 )
 from cistern_archive.pipeline.results import (
-    DimensionResult,
     PairResult,
     PluginProvenance,
     Provenance,
@@ -33,6 +32,9 @@ from cistern_archive.pipeline.results import (
     SiteResult,
     StageFailure,
 )
+from cistern_archive.grid.surface import wall_surface
+from cistern_archive.pipeline.runner import dimension_result
+from cistern_archive.pipeline.status import site_status
 from cistern_archive.sonar.scan import RangeScan, Scan
 
 WIDTH_M, LENGTH_M = 3.61, 7.21
@@ -203,6 +205,7 @@ def make_site_build(
     if failed:
         result = SiteResult(
             site_id=site_id, name=name, status="failed", scans=scans_json, provenance=provenance,
+            status_reasons=["the build stopped at match: pair (0, 2): ValueError: reference scan has no valid beams"],
             timings_s={"load": 0.12, "segment": 0.05, "match": 0.4},
             failure=StageFailure(stage="match", input=f"pair (0, 2): {record.scans[0].file} → {record.scans[2].file}",
                                  error="ValueError: reference scan has no valid beams",
@@ -242,19 +245,22 @@ def make_site_build(
                            x_m=None if not placed[k] else float(xy[k, 0]), y_m=None if not placed[k] else float(xy[k, 1]),
                            yaw_rad=0.0, depth_m=1.5, placed=bool(placed[k]), reason=reasons[k],
                            truth_x_m=float(truth_d[k, 0]), truth_y_m=float(truth_d[k, 1])) for k in range(n)]
+    labels = [s.id for s in scans_json]
+    dimensions = [dimension_result(r, 10, labels, cell_m=CELL_M, poses=poses) for r in rows]
+    status, status_reasons = site_status(failed_stage=None, scans_placed=list(placed), labels=labels, unmeasured=[])
     result = SiteResult(
-        site_id=site_id, name=name, status="ok", scans=scans_json,
+        site_id=site_id, name=name, status=status, status_reasons=status_reasons, scans=scans_json,
         pairs=[PairResult(i=m.i, j=m.j, dx_m=m.dx_m, dy_m=m.dy_m, dyaw_rad=m.dyaw_rad, weight=m.weight,
                           converged=m.converged, iterations=m.iterations, seconds=m.seconds, reason=m.reason)
                for m in matches],
-        dimensions=[DimensionResult(name=r.name, map_m=r.map_m, reference_m=r.reference_m,
-                                    reference_kind=r.reference_kind, diff_m=r.diff_m, depth_m=r.depth_m,
-                                    probe_std_m=r.probe_std_m, probes_m=list(r.probes)) for r in rows],
+        dimensions=dimensions,
         dimension_stats=table.stats, map_stats=map_result.stats, reference_scan=0, provenance=provenance,
         timings_s={"load": 0.12, "segment": 0.05, "match": 2.4, "localize": 0.01, "map": 0.3, "compare": 0.02},
     )
+    mesh = wall_surface(map_result, poses, [s.depth_m for s in ranged]) if slices == 1 else \
+        wall_surface(map_result, poses, [float(d) for d in np.linspace(1.0, 3.0, n)])
     return SiteBuild(result=result, record=record, raw_scans=raw, range_scans=ranged, matches=matches,
-                     poses=poses, map_result=map_result, table=table)
+                     poses=poses, map_result=map_result, table=table, mesh=mesh)
 
 
 SITES = {

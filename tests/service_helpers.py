@@ -12,7 +12,7 @@ from cistern_archive.archive.digest import file_sha256
 CLI = [sys.executable, "-m", "cistern_archive"]
 # Reports without the 3D model and the per-pair/per-scan figures render in a fraction of the time;
 # the report has its own tests.
-FAST_REPORT = {"model": False, "max_pair_figures": 0, "max_fan_figures": 0, "dpi": 50}
+FAST_REPORT = {"model": False, "pdf": False, "max_pair_figures": 0, "max_fan_figures": 0, "dpi": 50}
 
 
 def make_catalog(root: Path, n_sites: int = 2, *, seed: int = 7) -> Path:

@@ -51,6 +51,8 @@ def test_export_writes_a_valid_bag_with_everything_a_depositor_needs(built, tmp_
     assert (preservation / "grids" / "slice-00.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (preservation / "model.ply").read_bytes().startswith(b"ply")
     assert (data / "report" / "index.html").is_file()
+    for export in ("plan.dxf", "plan.svg"):  # the CAD exports travel with the report
+        assert (data / "report" / export).is_file(), export
     assert json.loads((data / "report" / "result.json").read_text())["site_id"] == SITE
     resolved = json.loads((data / "config" / "resolved.json").read_text())
     assert resolved["id"] == SITE and resolved["pipeline"]["matcher"]["params"]

@@ -73,3 +73,23 @@ def test_inspect_real_v4log_json():
     assert doc["format"] == "seanet-v4log" and len(doc["scans"]) == 19
     assert sum(s["beams"] for s in doc["scans"]) == 468 and {s["bins"] for s in doc["scans"]} == {642}
     assert doc["scans"][1]["bearing_max_deg"] - doc["scans"][1]["bearing_min_deg"] == pytest.approx(86.4)
+
+
+def test_inspect_table_prints_warnings_without_raw_markup(tmp_path):
+    path = _capture(tmp_path / "scan.seanet", n=60)
+    data = path.read_bytes()
+    path.write_bytes(data[:2000] + b"\x00garbage[/]\x00" * 5 + data[2000:])
+    doc = json.loads(runner.invoke(app, ["inspect", str(path), "--json"]).stdout)
+    assert doc["warnings"], "the damaged capture should warn"
+    result = runner.invoke(app, ["inspect", str(path)])
+    assert result.exit_code == 0, result.output
+    assert "warning:" in result.stdout and "[yellow]" not in result.stdout and "[/]" not in result.stdout
+
+
+def test_help_texts_carry_no_markup():
+    from cistern_archive.commands import COMMAND_MODULES
+
+    for command in ("",) + COMMAND_MODULES:
+        result = runner.invoke(app, [command, "--help"] if command else ["--help"], env={"COLUMNS": "200"})
+        assert result.exit_code == 0, (command, result.output)
+        assert "``" not in result.output and ":func:" not in result.output, (command, result.output)

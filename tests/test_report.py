@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import shutil
 import struct
 import zlib
 from html.parser import HTMLParser
@@ -14,14 +15,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from cistern_archive.grid.volume import stack_slices
-from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult
+from cistern_archive.grid.surface import SurfaceParams, wall_surface
+from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses
 from cistern_archive.report import ReportConfig, page_bytes, render_site
 from cistern_archive.report.files import build_time_from_env, slug, unique_slugs, write_npz
 from cistern_archive.report.gltf import glb_bytes, read_glb
 from cistern_archive.report.html import signed
-from cistern_archive.report.model3d import build_mesh
-from report_fixtures import LATITUDE, LENGTH_M, SITES, WIDTH_M, make_site_build, render_catalog
+from report_fixtures import LATITUDE, LENGTH_M, LONGITUDE, SITES, WIDTH_M, make_site_build, render_catalog
 
 @pytest.fixture(scope="module")
 def catalog(tmp_path_factory) -> tuple[Path, dict[str, dict[str, str]]]:
@@ -29,8 +29,10 @@ def catalog(tmp_path_factory) -> tuple[Path, dict[str, dict[str, str]]]:
     return root, render_catalog(root)
 
 
-# ------------------------------------------------------------------------------------------ volume
-def _box_grid(half: float, depth: float, cell: float = 0.05) -> EvidenceGrid:
+# ------------------------------------------------------------------------------------------ surface
+def _box_grid(half: float, depth: float, cell: float = 0.05, *, open_side: bool = False) -> EvidenceGrid:
+    """A square room: free inside (−2), walls (+4), unknown outside; ``open_side`` leaves the east wall
+    unseen (the free water just ends in unknown space)."""
     n = int(round(2 * (half + 0.5) / cell))
     centres = -(half + 0.5) + (np.arange(n) + 0.5) * cell
     gx, gy = np.meshgrid(centres, centres)
@@ -38,40 +40,52 @@ def _box_grid(half: float, depth: float, cell: float = 0.05) -> EvidenceGrid:
     log_odds = np.zeros((n, n), dtype=np.float32)
     log_odds[inside > cell] = -2.0
     log_odds[np.abs(inside) <= cell / 2 + 1e-9] = 4.0
+    if open_side:
+        log_odds[(gx > half - cell) & (log_odds > 0)] = 0.0
     return EvidenceGrid(log_odds, (-(half + 0.5), -(half + 0.5)), cell, depth)
 
 
-def test_single_slice_is_extruded_between_surface_and_below():
-    grid = _box_grid(1.0, depth=0.6)
-    volume = stack_slices(MapResult((grid,)), dz_m=0.1, extend_m=1.0)
-    assert volume.depths_m[0] == 0.0  # clamped at the water surface
-    assert_allclose(volume.depths_m[-1], 1.6)
-    assert_allclose(volume.probability[0], grid.probability(), rtol=1e-6)
-    assert np.all(volume.probability == volume.probability[:1])
+def _poses(n: int = 1) -> Poses:
+    return Poses(np.zeros((n, 2)), np.zeros(n), np.ones(n, dtype=bool), ("",) * n, 0)
 
 
-def test_several_slices_move_the_wall_between_them():
-    shallow, deep = _box_grid(1.0, depth=1.0), _box_grid(2.0, depth=3.0)
-    volume = stack_slices(MapResult((deep, shallow)), dz_m=0.5, extend_m=0.0)
-    assert volume.slice_depths_m == (1.0, 3.0)
-    middle = volume.probability[list(volume.depths_m).index(2.0)]
-    row = middle[middle.shape[0] // 2]
-    xs = volume.origin_xy_m[0] + (np.arange(len(row)) + 0.5) * volume.cell_m
-    wall_x = xs[np.argmax(np.where(xs > 0, row, -1))]
-    assert abs(wall_x - 1.5) <= 2 * volume.cell_m  # halfway between the walls at 1 m and 2 m
+def test_surface_follows_the_walls_of_one_slice_extruded():
+    mesh = wall_surface(MapResult((_box_grid(1.0, depth=0.6),)), _poses(), [0.6])
+    x0, x1, y0, y1 = mesh.points[:, 0].min(), mesh.points[:, 0].max(), mesh.points[:, 1].min(), mesh.points[:, 1].max()
+    assert_allclose([x0, x1, y0, y1], [-1.0, 1.0, -1.0, 1.0], atol=0.06)  # the walls' inner faces
+    assert mesh.depth_range_m == (0.0, 1.6)  # 1 m above (not past the surface) and below
+    assert mesh.n_triangles <= SurfaceParams().max_faces
 
 
-def test_isosurface_wraps_the_walls():
-    build = make_site_build()
-    config = ReportConfig()
-    volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
-    mesh = build_mesh(volume, config)
-    x0, x1, y0, y1, z0, z1 = mesh.bounds
-    # outer faces: the wall cells (±1 cell) plus the one-cell display dilation on each side
-    assert 0.05 < (x1 - x0) - WIDTH_M < 0.35 and 0.05 < (y1 - y0) - LENGTH_M < 0.35
-    assert z1 <= -0.4 and z0 >= -2.6  # 1.5 m ± 1 m
-    assert mesh.n_cells <= config.max_faces
-    assert "depth_m" in mesh.point_data
+def test_ghost_echoes_outside_the_walls_leave_no_posts():
+    grid = _box_grid(1.0, depth=1.0)
+    log_odds = grid.log_odds.copy()
+    log_odds[2:4, 2:4] = 4.0  # an isolated echo in unknown space beyond the wall
+    log_odds[20:22, 20:22] = 4.0  # and one in the water (a fish, the tether)
+    ghosts = EvidenceGrid(log_odds, grid.origin_xy_m, grid.cell_m, grid.depth_m)
+    clean = wall_surface(MapResult((grid,)), _poses(), [1.0])
+    spooked = wall_surface(MapResult((ghosts,)), _poses(), [1.0])
+    assert_allclose(spooked.points.min(axis=0), clean.points.min(axis=0), atol=1e-6)
+    assert spooked.n_triangles == clean.n_triangles
+
+
+def test_an_unseen_wall_is_left_open_not_invented():
+    mesh = wall_surface(MapResult((_box_grid(1.0, depth=1.0, open_side=True),)), _poses(), [1.0])
+    centroids = mesh.points[mesh.triangles].mean(axis=1)
+    east = (centroids[:, 0] > 0.8) & (np.abs(centroids[:, 1]) < 0.6)
+    assert not east.any()  # the middle of the unseen wall is farther than max_gap_m / 2 from any seen wall
+    assert (centroids[:, 0] < -0.8).any()  # the seen west wall is there
+
+
+def test_walls_curve_through_several_slices_like_a_bell():
+    grids = (_box_grid(1.0, depth=1.0), _box_grid(2.0, depth=2.0), _box_grid(2.5, depth=3.0))
+    mesh = wall_surface(MapResult(grids), _poses(3), [1.0, 2.0, 3.0])
+    assert mesh.depth_range_m == (1.0, 3.0)  # nothing was seen above or below the slices
+    for depth, half in ((1.0, 1.0), (2.0, 2.0), (3.0, 2.5)):
+        ring = mesh.points[np.abs(-mesh.points[:, 2] - depth) < 0.05]
+        assert abs(ring[:, 0].max() - half) < 0.1, depth
+    between = mesh.points[np.abs(-mesh.points[:, 2] - 1.5) < 0.05]
+    assert 1.0 < between[:, 0].max() < 2.0  # the wall moves smoothly from one outline to the next
 
 
 # ------------------------------------------------------------------------------------------ files
@@ -126,7 +140,7 @@ class PageAudit(HTMLParser):
         self.tables = 0
         self.captions = 0
         self.th: list[dict] = []
-        self.scripts = 0
+        self.scripts: list[str] = []
         self.figures = 0
         self.figcaptions = 0
         self.external: list[str] = []
@@ -148,7 +162,7 @@ class PageAudit(HTMLParser):
         elif tag == "th":
             self.th.append(a)
         elif tag == "script":
-            self.scripts += 1
+            self.scripts.append(a.get("src", ""))
         elif tag == "figure":
             self.figures += 1
         elif tag == "figcaption":
@@ -173,7 +187,9 @@ def test_pages_are_accessible_and_offline(catalog, page):
     path = root / page
     found = audit(path)
     assert found.lang == "en"
-    assert found.scripts == 0 and found.external == []
+    assert found.external == []
+    for src in found.scripts:  # only the vendored viewer, from the site folder; no inline code
+        assert src and (path.parent / src).is_file(), src
     for image in found.images:
         assert image.get("alt", "").strip(), image
         assert (path.parent / image["src"]).is_file(), image["src"]
@@ -186,7 +202,7 @@ def test_pages_are_accessible_and_offline(catalog, page):
         elif anchor:
             assert anchor in found.ids, href
     assert found.tables == found.captions
-    assert all(th.get("scope") in ("col", "row") for th in found.th)
+    assert all(th.get("scope") in ("col", "row", "rowgroup") for th in found.th)
     assert found.figures == found.figcaptions
     assert "<style>" in path.read_text() and "@media print" in path.read_text()
 
@@ -205,7 +221,7 @@ def test_site_folder_holds_every_artifact(catalog):
     read_glb((root / "pool" / "model.glb").read_bytes())
     assert (root / "pool" / "model.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
     rows = (root / "pool" / "dimensions.csv").read_text().splitlines()
-    assert rows[0].startswith("name,reference_kind,depth_m,map_m,reference_m,diff_m") and len(rows) == 3
+    assert rows[0].startswith("name,reference_kind,depth_m,map_m,ci95_m,reference_m,diff_m") and len(rows) == 3
     assert "slices" in artifacts["bell"] and "mesh-ply" in artifacts["bell"]
 
 
@@ -215,7 +231,7 @@ def test_site_page_shows_tables_and_unplaced_scans(catalog):
     assert 'id="dimension-table"' in html
     for text in ("Width", "Length", "Difference (m)", "Probe std (m)", "Scans not placed, and why",
                  "no converged match links it to the reference scan", "Parameters and provenance",
-                 "pf-pairwise", "model.glb", "result.json", "dimensions.csv", "interpolated between them"):
+                 "pf-pairwise", "model.glb", "result.json", "dimensions.csv", "walls curved through them"):
         assert text in html, text
 
 
@@ -239,14 +255,76 @@ def test_coordinates_are_redacted_when_the_record_asks(catalog):
     assert needle in (root / "bell" / "index.html").read_text()
 
 
-def test_index_lists_sites_and_the_difference_table(catalog):
+class _Table(HTMLParser):
+    """The header and body cells of the table with a given id."""
+
+    def __init__(self, table_id: str) -> None:
+        super().__init__()
+        self.table_id, self.inside, self.cell = table_id, False, None
+        self.head: list[str] = []
+        self.rows: list[list[str]] = []
+        self.section = ""
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table" and dict(attrs).get("id") == self.table_id:
+            self.inside = True
+        elif self.inside and tag in ("thead", "tbody"):
+            self.section = tag
+        elif self.inside and tag == "tr" and self.section == "tbody":
+            self.rows.append([])
+        elif self.inside and tag in ("th", "td"):
+            self.cell = ""
+
+    def handle_endtag(self, tag):
+        if tag == "table":
+            self.inside = False
+        elif self.inside and tag in ("th", "td") and self.cell is not None:
+            (self.head if self.section == "thead" else self.rows[-1]).append(" ".join(self.cell.split()))
+            self.cell = None
+
+    def handle_data(self, data):
+        if self.cell is not None:
+            self.cell += data
+
+
+def read_table(html: str, table_id: str) -> tuple[list[str], list[list[str]]]:
+    parser = _Table(table_id)
+    parser.feed(html)
+    return parser.head, parser.rows
+
+
+def test_index_lists_sites_with_honest_status(catalog):
     root, _ = catalog
     html = (root / "index.html").read_text()
     for text in ("Swimming pool", "Bell cistern", "Broken site", "4 of 4", "3 of 4", "0 of 4",
-                 "reference scan has no valid beams", 'id="difference-table"', "Width (m)", "Length (m)",
-                 "pool/thumbnail.png", "2024-01-01T00:00:00Z", "Table IV"):
+                 "reference scan has no valid beams", "pool/thumbnail.png", "2024-01-01T00:00:00Z",
+                 "1 ok, 1 partial, 1 failed", "1 of 4 scans not placed (S4)"):
         assert text in html, text
     assert "broken/thumbnail.png" not in html
+    for site, status in (("pool", "ok"), ("bell", "partial"), ("broken", "failed")):
+        assert re.search(rf'id="site-{site}".*?badge badge-{status}">{status}<', html, re.S), site
+
+
+def test_index_has_one_row_per_site_and_dimension_truth_first_and_no_sparse_column(catalog):
+    root, _ = catalog
+    html = (root / "index.html").read_text()
+    head, rows = read_table(html, "difference-table")
+    for k, row in enumerate(rows):  # the site cell spans its rows
+        if len(row) == len(head) - 1:
+            rows[k] = [rows[k - 1][0]] + row
+    assert head == ["Site", "Dimension", "Map (m)", "Truth (m)", "Map − truth (m)", "Map − truth (%)",
+                    "Mosaic (m)", "Map − mosaic (m)", "Probes", "Probe std (m)"]
+    assert [(r[0], r[1]) for r in rows] == [("Swimming pool", "Width"), ("Swimming pool", "Length"),
+                                            ("Bell cistern", "Width"), ("Bell cistern", "Length")]
+    assert all(r[3] == "3.610" and r[6] == "—" for r in rows if r[1] == "Width")  # truth, no mosaic
+    assert all(r[3] == "—" and r[6] == "7.210" for r in rows if r[1] == "Length")
+    assert all(r[8] == "10 of 10" for r in rows)
+    for k in range(2, len(head)):
+        assert any(r[k] != "—" for r in rows), head[k]
+    caption = re.search(r'id="difference-table".*?<caption>(.*?)</caption>', html, re.S).group(1)
+    for heading in head[2:]:
+        assert f"<strong>{heading}</strong>:" in caption, heading
+    assert 'id="summary-figures"' in html and "median" in html and "Weak dimensions" in html
 
 
 def test_site_page_with_images_fits_the_size_budget(catalog):
@@ -281,29 +359,13 @@ def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
     assert out == "" and err == ""  # no X / VTK warnings on a machine without a display
 
     def digest(folder: Path) -> dict[str, str]:
-        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+        return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(folder.rglob("*")) if p.is_file()}
 
     first, second = digest(root / "pool"), digest(again)
     assert first.keys() == second.keys()
     assert [name for name in first if first[name] != second[name]] == []
     assert zlib.crc32((again / "index.html").read_bytes()) == zlib.crc32((root / "pool" / "index.html").read_bytes())
-
-
-def test_specks_are_dropped_from_the_mesh():
-    build = make_site_build()
-    grid = build.map_result.grids[0]
-    log_odds = grid.log_odds.copy()
-    log_odds[2, 2] = 4.0  # one isolated echo outside the walls
-    speckled = MapResult((EvidenceGrid(log_odds, grid.origin_xy_m, grid.cell_m, grid.depth_m),))
-    config = ReportConfig()
-    volume = stack_slices(speckled, dz_m=config.dz_m, extend_m=config.extend_m)
-    kept = build_mesh(volume, config.model_copy(update={"min_component_fraction": 0.0, "min_blob_cells": 0}))
-    by_blob = build_mesh(volume, config)
-    by_piece = build_mesh(volume, config.model_copy(update={"min_blob_cells": 0, "dilate_cells": 0}))
-    x0 = grid.origin_xy_m[0] + 2 * grid.cell_m
-    assert kept.bounds[0] <= x0 + grid.cell_m  # the speck reaches out to the corner
-    assert by_blob.bounds[0] > x0 + 5 * grid.cell_m  # removed from the volume (blob of 1 cell)
-    assert by_piece.bounds[0] > x0 + 5 * grid.cell_m  # removed from the mesh (a tiny separate piece)
 
 
 def test_download_list_prints_no_size_for_the_timed_result(tmp_path):
@@ -315,3 +377,126 @@ def test_download_list_prints_no_size_for_the_timed_result(tmp_path):
     rows = {d["file"]: d["size"] for d in _downloads({"result": "result.json", "dimensions-csv": "dimensions.csv"},
                                                      tmp_path)}
     assert rows == {"result.json": "", "dimensions.csv": "4 B"}
+
+
+def test_stations_above_one_another_share_one_label():
+    from cistern_archive.report.figures import stacked_labels
+
+    xy = np.array([[0.0, 0.0], [0.01, -0.01], [2.0, 0.0], [0.0, 0.02]])
+    shown = stacked_labels(xy, ["d1a", "d2a", "d1b", "d3a"], tolerance_m=0.05)
+    assert [text for _, text in shown] == ["d1a / d2a / d3a", "d1b"]
+
+
+def test_depth_colour_bar_runs_the_models_way():
+    from cistern_archive.report.model3d import depth_annotations
+
+    labels = depth_annotations((0.6, 4.6))
+    # coloured by elevation (−depth): the shallowest depth sits at the top of the bar, the deepest at the bottom
+    top, bottom = max(labels), min(labels)
+    assert labels[top] == "0.6" and labels[bottom] == "4.6"
+
+
+def test_parameters_read_as_key_and_value(catalog):
+    from cistern_archive.report.site import parameter_items
+
+    assert parameter_items({"tau_pw": 6.0, "below": {"s2": "s1"}, "refine": True, "sizes": [1, 2]}) == [
+        {"key": "below", "value": "s2: s1"}, {"key": "refine", "value": "yes"}, {"key": "sizes", "value": "1, 2"},
+        {"key": "tau_pw", "value": "6"}]
+    root, _ = catalog
+    html = (root / "pool" / "index.html").read_text()
+    assert "<dt>tau_pw</dt><dd>6</dd>" in html and "{&#34;" not in html and '{"' not in html
+
+
+def test_dimensions_carry_a_95_percent_interval(catalog):
+    root, _ = catalog
+    result = json.loads((root / "pool" / "result.json").read_text())
+    for d in result["dimensions"]:
+        assert 0.03 < d["ci95_m"] < 0.1, d  # the cell term alone is 1.96 × 0.05 / √6 = 0.040 m
+    html = (root / "pool" / "index.html").read_text()
+    width = result["dimensions"][0]
+    assert f"{width['map_m']:.3f} ± {width['ci95_m']:.3f}" in html
+
+
+def test_interval_combines_spread_cell_and_pose():
+    from cistern_archive.pipeline.intervals import ci95_half_width, pose_term
+
+    assert ci95_half_width([3.5], 0.05) == pytest.approx(1.959964 * 0.05 / 6 ** 0.5)
+    wide = ci95_half_width([3.4, 3.6, 3.5, 3.45, 3.55], 0.05)
+    assert wide > ci95_half_width([3.5, 3.5, 3.5, 3.5, 3.5], 0.05)
+    cov = np.zeros((2, 3, 3))
+    cov[:, 0, 0] = 0.02 ** 2  # 2 cm along x for both scans
+    poses = Poses(np.array([[0.0, 0.0], [3.0, 0.0]]), np.zeros(2), np.ones(2, dtype=bool), ("", ""), 0, cov)
+    across = [(-0.2, 0.0, 3.2, 0.0)]  # from the first scan's wall to the second's
+    assert pose_term(across, poses) == pytest.approx(1.959964 * (2 * 0.02 ** 2) ** 0.5)
+    assert pose_term([(-0.2, 0.0, 0.3, 0.0)], poses) == 0.0  # one scan saw both walls
+    assert pose_term(across, Poses(poses.xy_m, poses.yaw_rad, poses.placed, poses.reasons, 0)) == 0.0
+
+
+def test_plan_round_trips_through_dxf_and_svg(catalog):
+    import xml.etree.ElementTree as ET
+
+    import ezdxf
+
+    root, artifacts = catalog
+    for site, depths in (("pool", [1.5]), ("bell", [1.0, 2.0, 3.0])):
+        doc = ezdxf.readfile(root / site / artifacts[site]["plan-dxf"])
+        assert doc.units == ezdxf.units.M
+        layers = sorted({e.dxf.layer for e in doc.modelspace().query("LWPOLYLINE")})
+        assert len(layers) == len(depths), (site, layers)
+        svg = ET.parse(root / site / artifacts[site]["plan-svg"]).getroot()
+        ns = {"svg": "http://www.w3.org/2000/svg"}
+        assert svg.find(".//svg:g[@id='scale-bar']", ns) is not None
+        assert svg.find(".//svg:g[@id='north-arrow']", ns) is not None
+        assert len(svg.findall(".//svg:g[@stroke]", ns)) == len(depths)
+    doc = ezdxf.readfile(root / "pool" / "plan.dxf")
+    points = np.concatenate([np.array(e.get_points("xy")) for e in doc.modelspace().query("LWPOLYLINE")])
+    # the outline runs along the walls' inner faces
+    assert points[:, 0].max() - points[:, 0].min() == pytest.approx(WIDTH_M, abs=0.12)
+    assert points[:, 1].max() - points[:, 1].min() == pytest.approx(LENGTH_M, abs=0.12)
+    html = (root / "pool" / "index.html").read_text()
+    assert 'href="plan.dxf"' in html and 'href="plan.svg"' in html
+
+
+def test_report_pdf_is_printed_and_pinned(catalog, tmp_path):
+    from cistern_archive.report.pdf import chromium_path, pin_dates, print_pdf
+
+    if chromium_path() is None:
+        pytest.skip("Chromium not found (Debian: apt-get install chromium)")
+    root, artifacts = catalog
+    data = (root / "pool" / artifacts["pool"]["report-pdf"]).read_bytes()
+    assert data.startswith(b"%PDF-") and data.rstrip().endswith(b"%%EOF")
+    assert len(re.findall(rb"/Type\s*/Page\b", data)) >= 2  # the whole page, on several sheets
+    assert b"/CreationDate (D:20231114221320+00'00')" in data  # SOURCE_DATE_EPOCH of the tests, not the clock
+    # every cross-reference entry points at its object after the links were made relative
+    start = int(re.search(rb"startxref\n(\d+)", data[-200:]).group(1))
+    assert data[start:start + 4] == b"xref"
+    rows = data[start:].split(b"\n")[2:2 + int(re.match(rb"xref\n0 (\d+)\n", data[start:]).group(1))]
+    assert all(data[int(r[:10]):].startswith(b"%d 0 obj" % k) for k, r in enumerate(rows) if r.endswith(b" n "))
+    links = re.findall(rb"/URI \(([^)]*)\)", data)
+    assert b"grid.npz" in links and b"../index.html" in links and not any(b"file:" in u for u in links)
+    copy = tmp_path / "pool"
+    shutil.copytree(root / "pool", copy)  # printed elsewhere: the same bytes
+    assert print_pdf(copy / "index.html", tmp_path / "again.pdf", when=build_time_from_env()) == ""
+    assert (tmp_path / "again.pdf").read_bytes() == data
+    assert 'href="report.pdf"' in (root / "pool" / "index.html").read_text()
+    assert pin_dates(b"/CreationDate (D:20260101120000+00'00')", None) == b"/CreationDate (D:19700101000000+00'00')"
+
+
+def test_geotiff_only_for_a_georeferenced_unredacted_site(catalog):
+    import rasterio
+    from rasterio.warp import transform
+
+    root, artifacts = catalog
+    assert "grid-tif" not in artifacts["pool"] and not (root / "pool" / "grid.tif").exists()  # redacted
+    with rasterio.open(root / "bell" / artifacts["bell"]["grid-tif"]) as tif:
+        assert tif.count == 3 and tif.crs.to_epsg() == 32633  # Malta: UTM zone 33 N
+        assert tif.res == pytest.approx((0.05, 0.05))
+        band = tif.read(1)
+        assert np.isnan(band).any() and np.nanmax(band) > 0.9 and np.nanmin(band) < 0.2
+        # the reference scan (map origin) sits at the record's coordinates
+        (east,), (north,) = transform("EPSG:4326", tif.crs, [LONGITUDE], [LATITUDE])
+        row, col = tif.index(east, north)
+        assert 0 <= row < tif.height and 0 <= col < tif.width
+        assert "depth" in tif.descriptions[0]
+    world = (root / "bell" / "grid.tfw").read_text().split()
+    assert [float(world[0]), float(world[3])] == [0.05, -0.05]

@@ -85,3 +85,50 @@ def test_screenshots(browser, site, shots):
         assert problems == []
     shutil.copy(site / "pool" / "model-oblique-ne.png", shots / "model-oblique-ne.png")
     print(f"report screenshots in {shots}")
+
+
+def test_interactive_model_loads_offline_without_errors(browser, site, shots):
+    """The vendored three.js viewer parses model.glb.js and draws it; nothing leaves the file system."""
+    from browser_helpers import CHROMIUM, CHROMIUM_ARGS
+
+    # WebGL without a GPU: Chromium's software renderer, in a second browser of the same playwright
+    chromium = browser.browser_type.launch(executable_path=str(CHROMIUM),
+                                           args=CHROMIUM_ARGS + ["--enable-unsafe-swiftshader", "--use-gl=angle",
+                                                                 "--use-angle=swiftshader"])
+    try:
+        context = chromium.new_context(viewport={"width": 1200, "height": 900})
+        page = context.new_page()
+        problems, requests = [], []
+        page.on("console", lambda msg: problems.append(msg.text) if msg.type == "error" else None)
+        page.on("pageerror", lambda exc: problems.append(str(exc)))
+        page.on("request", lambda req: requests.append(req.url))
+        page.goto((site / "bell" / "index.html").as_uri(), wait_until="load")
+        page.wait_for_selector("#model-viewer[data-state]", state="attached", timeout=30_000)
+        viewer = page.locator("#model-viewer")
+        assert viewer.get_attribute("data-state") == "loaded", problems
+        assert int(float(viewer.get_attribute("data-triangles"))) > 1000
+        assert viewer.is_visible() and viewer.locator("canvas").count() == 1
+        viewer.scroll_into_view_if_needed()
+        viewer.screenshot(path=str(shots / "viewer-bell.png"))
+        assert problems == []
+        assert [u for u in requests if not u.startswith("file://")] == []
+    finally:
+        chromium.close()
+
+
+def test_status_badges_and_export_links(browser, site):
+    context, page, problems = open_page(browser, (site / "index.html").as_uri())
+    try:
+        badges = {row: page.locator(f"#site-{row} .badge").inner_text() for row in ("pool", "bell", "broken")}
+        assert badges == {"pool": "ok", "bell": "partial", "broken": "failed"}
+        assert page.locator("#site-bell td.reasons").inner_text().strip() == "1 of 4 scans not placed (S4)"
+    finally:
+        context.close()
+    context, page, problems = open_page(browser, (site / "pool" / "index.html").as_uri())
+    try:
+        for name in ("plan.dxf", "plan.svg", "report.pdf", "model.glb"):
+            link = page.locator(f'.downloads a[href="{name}"]')
+            assert link.count() == 1 and (site / "pool" / name).is_file(), name
+        assert problems == []
+    finally:
+        context.close()

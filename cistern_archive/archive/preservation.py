@@ -85,18 +85,12 @@ def write_grids(build: SiteBuild, folder: Path) -> list[Path]:
 
 
 def write_mesh(build: SiteBuild, folder: Path) -> list[Path]:
-    """``model.ply``: the report's isosurface of the stacked slices (map frame, metres, z up)."""
-    from cistern_archive.grid.volume import stack_slices
-    from cistern_archive.report.config import ReportConfig
-    from cistern_archive.report.model3d import build_mesh, export_ply
+    """``model.ply``: the pipeline's wall surface (map frame, metres, z up)."""
+    from cistern_archive.report.model3d import export_ply, render_mesh
 
-    if build.map_result is None or not build.map_result.grids:
+    if build.mesh is None:
         return []
-    config = ReportConfig()
-    mesh = build_mesh(stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m), config)
-    if mesh is None:
-        return []
-    return [export_ply(mesh, folder / "model.ply")]
+    return [export_ply(render_mesh(build.mesh), folder / "model.ply")]
 
 
 def write_preservation(build: SiteBuild, folder: Path) -> list[Path]:

@@ -59,6 +59,7 @@ def _text(value: float | None, spec: str) -> str:
 
 def _print_table(doc: dict) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     console = Console()
@@ -72,7 +73,7 @@ def _print_table(doc: dict) -> None:
                       _text(s["full_scale"], "g"), _text(s["timestamp"], ".3f"))
     console.print(table)
     for warning in doc["warnings"]:
-        console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True, markup=False, highlight=False)
+        console.print(f"[yellow]warning:[/] {escape(warning)}", soft_wrap=True, highlight=False)
 
 
 def register(app: typer.Typer) -> None:

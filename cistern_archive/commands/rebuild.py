@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 from pathlib import Path
 
 import typer
@@ -26,37 +27,84 @@ class PlainProgress:
         self.done += 1
         seconds = outcome.timings_s.get("wall", 0.0)
         line = f"[{self.done}/{self.total}] {outcome.id}: {outcome.status} ({seconds:.1f} s)"
-        if outcome.error:
-            line += f": {outcome.error.splitlines()[0]}"
+        if outcome.reasons:
+            line += f": {outcome.reasons[0].splitlines()[0]}"
         typer.echo(line)
 
 
-class RichProgress:
-    """A rich progress bar with one line per finished site (on a terminal)."""
+def running_stages(folder: Path) -> list[tuple[str, str]]:
+    """``(site, stage)`` of every site a worker is building now, from the stage markers in ``folder``
+    (``OUT/.progress``, see :class:`cistern_archive.service.worker.StageMarker`), sorted by site."""
+    try:
+        entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    except OSError:
+        return []
+    running = []
+    for path in entries:
+        try:
+            running.append((path.name, path.read_text(encoding="utf-8").strip()))
+        except OSError:  # finished between the listing and the read
+            continue
+    return running
 
-    def __init__(self) -> None:
+
+def running_text(running: list[tuple[str, str]]) -> str:
+    """``building lair-pool (match), bell-cistern (report)``, or empty when nothing runs."""
+    return "building " + ", ".join(f"{site} ({stage})" for site, stage in running) if running else ""
+
+
+class RichProgress:
+    """A rich progress bar with one line per finished site and, under the bar, which site is in which
+    stage now (on a terminal)."""
+
+    def __init__(self, out: Path) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from cistern_archive.service.worker import PROGRESS_DIR
 
         self.console = Console(stderr=True)
         self.bar = Progress(TextColumn("[bold]rebuild"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                             TextColumn("{task.description}"), console=self.console, transient=False)
         self.task = None
+        self.base = ""
+        self.folder = out / PROGRESS_DIR
+        self.stop_polling = threading.Event()
+        self.poller = threading.Thread(target=self._poll, name="rebuild-progress", daemon=True)
 
     def start(self, total: int, skipped: int, executor: str) -> None:
         self.bar.start()
-        self.task = self.bar.add_task(f"{skipped} unchanged, building on {executor}", total=total,
-                                      completed=skipped)
+        self.base = f"{skipped} unchanged, on {executor}"
+        self.task = self.bar.add_task(self.base, total=total, completed=skipped)
+        self.poller.start()
+
+    def _refresh(self) -> None:
+        from rich.markup import escape
+
+        running = running_text(running_stages(self.folder))
+        self.bar.update(self.task, description=escape(f"{self.base}; {running}" if running else self.base))
+
+    def _poll(self) -> None:
+        while not self.stop_polling.wait(0.5):
+            self._refresh()
 
     def site_done(self, outcome) -> None:
-        style = {"ok": "green", "failed": "bold red"}.get(outcome.status, "")
+        from rich.markup import escape
+
+        style = {"ok": "green", "partial": "yellow", "failed": "bold red"}.get(outcome.status, "")
         message = f"[{style}]{outcome.status}[/] {outcome.id} ({outcome.timings_s.get('wall', 0.0):.1f} s)"
-        if outcome.error:
-            message += f": {outcome.error.splitlines()[0]}"
+        if outcome.reasons:
+            message += f": {escape(outcome.reasons[0].splitlines()[0])}"
         self.bar.console.print(message, highlight=False)
         self.bar.advance(self.task)
+        self._refresh()
 
     def stop(self) -> None:
+        self.stop_polling.set()
+        if self.poller.is_alive():
+            self.poller.join(timeout=2.0)
+        if self.task is not None:
+            self.bar.update(self.task, description=self.base)
         self.bar.stop()
 
 
@@ -75,12 +123,12 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Rebuild every changed site into OUT/<site-id>/, then OUT/index.html and OUT/summary.json.
 
-        Exit codes: 0 all built or unchanged; 1 some sites failed; 2 usage or catalog error; 3 internal
-        error; 130 interrupted.
+        Exit codes: 0 every site ok or unchanged; 1 some site partial (a scan unplaced or a dimension
+        not measured) or failed; 2 usage or catalog error; 3 internal error; 130 interrupted.
         """
         from cistern_archive.service.rebuild import rebuild as run_rebuild
 
-        progress = RichProgress() if sys.stderr.isatty() else PlainProgress()
+        progress = RichProgress(out) if sys.stderr.isatty() else PlainProgress()
         try:
             summary = run_rebuild(catalog, out, sites=list(site) or None, workers=workers, force=force,
                                   scheduler=scheduler, scheduler_file=scheduler_file, archive=archive,
@@ -99,10 +147,11 @@ def register(app: typer.Typer) -> None:
                 progress.stop()
         for problem in summary.catalog_problems:
             typer.echo(problem, err=True)
-        for failed in summary.failed:
-            typer.echo(f"FAILED {failed.id}: {failed.error}", err=True)
+        for site_outcome in summary.not_ok:
+            typer.echo(f"{site_outcome.status.upper()} {site_outcome.id}: {'; '.join(site_outcome.reasons)}", err=True)
         counts = summary.counts()
-        typer.echo(f"{counts['ok']} built, {counts['failed']} failed, {counts['skipped']} unchanged "
+        typer.echo(f"{counts['ok']} ok, {counts['partial']} partial, {counts['failed']} failed, "
+                   f"{counts['skipped']} unchanged "
                    f"in {summary.seconds:.2f} s; log {out / summary.log}")
         typer.echo(str((out / "index.html").resolve()))
         raise typer.Exit(summary.exit_code)

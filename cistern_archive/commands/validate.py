@@ -14,7 +14,7 @@ def register(app: typer.Typer) -> None:
     def validate(
         catalog: Path = typer.Option(Path("catalog"), "--catalog", help="Catalog root folder."),
     ) -> None:
-        """Validate the catalog; print ``file:line: field: message`` for every problem (exit 2 if any)."""
+        """Validate the catalog; print "file:line: field: message" for every problem (exit 2 if any)."""
         from cistern_archive.catalog.validate import validate_catalog
 
         report = validate_catalog(catalog)

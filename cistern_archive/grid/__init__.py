@@ -14,5 +14,9 @@ export
 polygon
     Range scans ray cast inside a polygon (known geometry for tests and benchmarks).
 volume
-    Depth slices resampled onto one lattice and stacked into a 3-D volume (:func:`stack_slices`).
+    Depth slices resampled onto one lattice (:func:`common_lattice`, :func:`resample`) and interpolated
+    in depth.
+surface
+    The wall surface from the evidence (:func:`wall_surface`): the water the vehicle saw, bounded where
+    walls were seen; the pipeline's mesh step.
 """

@@ -12,6 +12,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from cistern_archive.pipeline.contracts import DimensionTable, MapResult, MatchResult, Poses
+from cistern_archive.pipeline.status import SiteStatus
 from cistern_archive.sonar.scan import RangeScan, Scan
 
 RESULT_SCHEMA_VERSION = 1
@@ -60,12 +61,18 @@ class PairResult(Model):
 class DimensionResult(Model):
     name: str
     map_m: float | None
+    ci95_m: float | None = Field(default=None, description="half-width of the 95 % interval of map_m "
+                                                           "(cistern_archive.pipeline.intervals)")
     reference_m: float
     reference_kind: Literal["mosaic", "truth"]
     diff_m: float | None
     depth_m: float = 0.0
     probe_std_m: float | None = None
     probes_m: list[float] = Field(default_factory=list)
+    probes_requested: int = Field(default=0, description="probes the record asked for (0: not known)")
+    weak: bool = Field(default=False, description="too few probes or too wide a spread to trust "
+                                                  "(cistern_archive.pipeline.status)")
+    weak_reason: str = ""
     note: str = ""
 
 
@@ -100,7 +107,8 @@ class SiteResult(Model):
     schema_version: int = RESULT_SCHEMA_VERSION
     site_id: str
     name: str
-    status: Literal["ok", "failed"]
+    status: SiteStatus
+    status_reasons: list[str] = Field(default_factory=list, description="why the status is not ok")
     scans: list[ScanPose] = Field(default_factory=list)
     pairs: list[PairResult] = Field(default_factory=list)
     dimensions: list[DimensionResult] = Field(default_factory=list)
@@ -132,3 +140,4 @@ class SiteBuild:
     poses: Poses | None = None
     map_result: MapResult | None = None
     table: DimensionTable | None = None
+    mesh: Any = None  # cistern_archive.grid.surface.SurfaceMesh: the wall surface of the mesh step

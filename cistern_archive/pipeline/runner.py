@@ -26,7 +26,15 @@ from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.errors import StageError
-from cistern_archive.pipeline.contracts import STAGES, MatchGuess, MatchResult, StageParams, accepts_guess
+from cistern_archive.pipeline.contracts import (
+    STAGES,
+    DimensionRow,
+    MatchGuess,
+    MatchResult,
+    Poses,
+    StageParams,
+    accepts_guess,
+)
 from cistern_archive.pipeline.registry import LoadedPlugin, Registry, default_registry
 from cistern_archive.pipeline.results import (
     DimensionResult,
@@ -38,6 +46,8 @@ from cistern_archive.pipeline.results import (
     SiteResult,
     StageFailure,
 )
+from cistern_archive.pipeline.intervals import ci95_half_width
+from cistern_archive.pipeline.status import label_indices, site_status, weakness
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.scan import RangeScan, Scan
 
@@ -70,11 +80,14 @@ class Stage:
 
 
 class _Timer:
-    def __init__(self) -> None:
+    def __init__(self, on_stage: Callable[[str], None] | None = None) -> None:
         self.timings: dict[str, float] = {}
+        self.on_stage = on_stage
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
+        if self.on_stage is not None:
+            self.on_stage(name)
         start = time.perf_counter()
         try:
             yield
@@ -126,20 +139,24 @@ def _run(stage: str, input_label: str, func: Callable[[], T]) -> T:
         raise StageError(stage, input_label, f"{type(exc).__name__}: {exc}") from exc
 
 
-def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> SiteBuild:
+def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
+               on_stage: Callable[[str], None] | None = None) -> SiteBuild:
     """Run the whole pipeline for one site; never raises for a stage failure.
+
+    ``on_stage(name)`` is called as each stage starts (the rebuild shows it on a terminal).
 
     Returns
     -------
     SiteBuild
-        ``result.status`` is ``"ok"`` or ``"failed"`` (with ``result.failure`` naming the stage and the
-        input that caused it); the arrays reached before a failure are kept for the report.
+        ``result.status`` is ``"ok"``, ``"partial"`` or ``"failed"`` (:func:`~cistern_archive.pipeline.status.site_status`,
+        with ``result.status_reasons``; ``result.failure`` names the stage and the input that stopped a
+        build); the arrays reached before a failure are kept for the report.
     """
     from cistern_archive.sonar.segmentation import segment
 
     registry = registry or default_registry()
     record = loaded.record
-    timer = _Timer()
+    timer = _Timer(on_stage)
     build = SiteBuild(result=SiteResult(site_id=record.id, name=record.name, status="ok"), record=record)
     stages: dict[str, Stage] = {}
     try:
@@ -174,6 +191,9 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> Sit
             build.table = _run("compare", f"{len(record.references)} reference dimensions",
                                lambda: comparator.instance.compare(build.map_result, build.poses, record.references,
                                                                    record.station_index(), comparator.params))
+        with timer.stage("mesh"):
+            build.mesh = _run("mesh", f"{len(build.map_result.grids)} depth slices",
+                              lambda: mesh_step(build))
     except StageError as exc:
         build.result.status = "failed"
         build.result.failure = StageFailure(
@@ -182,6 +202,14 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None) -> Sit
         )
     build.result = assemble_result(build, loaded, stages, timer.timings)
     return build
+
+
+def mesh_step(build: SiteBuild):
+    """The wall surface of the site from its evidence grids (:func:`cistern_archive.grid.surface.wall_surface`),
+    or ``None`` when no wall was seen."""
+    from cistern_archive.grid.surface import wall_surface
+
+    return wall_surface(build.map_result, build.poses, [s.depth_m for s in build.range_scans])
 
 
 def _pair_label(record: SiteRecord, i: int, j: int) -> str:
@@ -283,6 +311,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
     result = build.result.model_copy()
     truth = {t.station: t for t in record.truth}
     poses = build.poses
+    labels = [ref.station for ref in record.scans]
     scans = []
     for k, ref in enumerate(record.scans):
         raw = build.raw_scans[k] if k < len(build.raw_scans) else None
@@ -298,7 +327,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
             yaw_rad=float(poses.yaw_rad[k]) if poses is not None else (raw.yaw_rad if raw else 0.0),
             depth_m=raw.depth_m if raw else (ref.depth_m or 0.0),
             placed=placed,
-            reason=(poses.reasons[k] if poses is not None else "not localized: " + (result.error or "")),
+            reason=label_indices(poses.reasons[k] if poses is not None else "not localized: " + (result.error or ""),
+                                 labels),
             sigma_x_m=sigma[0], sigma_y_m=sigma[1],
             truth_x_m=t.x_m if t else None, truth_y_m=t.y_m if t else None,
         ))
@@ -312,17 +342,15 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         for m in build.matches
     ]
     if build.table is not None:
-        result.dimensions = [
-            DimensionResult(name=row.name, map_m=_finite(row.map_m), reference_m=row.reference_m,
-                            reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
-                            depth_m=_finite(row.depth_m) or 0.0,
-                            probe_std_m=_finite(row.probe_std_m), probes_m=[float(p) for p in row.probes],
-                            note=row.note)
-            for row in build.table.rows
-        ]
+        result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels,
+                                              cell_m=_cell_at(build, row.depth_m), poses=poses)
+                             for k, row in enumerate(build.table.rows)]
         result.dimension_stats = {k: _finite(v) for k, v in sorted(build.table.stats.items())}
     if build.map_result is not None:
         result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
+    result.status, result.status_reasons = site_status(
+        failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
+        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [])
     result.timings_s = dict(timings)
     result.timings_s["total"] = round(sum(timings.values()), 6)
     result.provenance = Provenance(
@@ -334,6 +362,50 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         numpy=np.__version__,
     )
     return result
+
+
+def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
+    """How many probes the record asked for the ``k``-th row (by position when it matches the
+    reference, else by name and kind; 0 when no reference matches)."""
+    refs = record.references
+    if k < len(refs) and refs[k].name == row.name and refs[k].kind == row.reference_kind:
+        return refs[k].measure.repeats
+    same = [r for r in refs if r.name == row.name and r.kind == row.reference_kind]
+    return same[0].measure.repeats if same else 0
+
+
+def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *, cell_m: float | None = None,
+                     poses: Poses | None = None) -> DimensionResult:
+    """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`)
+    and with its 95 % interval (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of
+    ``cell_m``) when it is measured."""
+    map_m, std = _finite(row.map_m), _finite(row.probe_std_m)
+    weak = weakness(len(row.probes), requested, std) if map_m is not None else ""
+    ci = None if map_m is None or cell_m is None else ci95_half_width(
+        row.probes, cell_m, [line for line in row.probe_lines if line is not None], poses)
+    return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
+                           reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
+                           depth_m=_finite(row.depth_m) or 0.0, probe_std_m=std,
+                           probes_m=[float(p) for p in row.probes], probes_requested=requested,
+                           weak=bool(weak), weak_reason=weak, note=label_indices(row.note, labels))
+
+
+def _cell_at(build: SiteBuild, depth_m: float) -> float | None:
+    """Cell size of the slice nearest ``depth_m``."""
+    grids = build.map_result.grids if build.map_result is not None else ()
+    return min(grids, key=lambda g: abs(g.depth_m - depth_m)).cell_m if grids else None
+
+
+def _unmeasured(record: SiteRecord, dimensions: Sequence[DimensionResult]) -> list[str]:
+    """``name (kind): reason`` of every reference the table has no measured value for."""
+    measured = {(d.name, d.reference_kind) for d in dimensions if d.map_m is not None}
+    notes = {(d.name, d.reference_kind): d.note for d in dimensions}
+    out = []
+    for ref in record.references:
+        if (ref.name, ref.kind) not in measured:
+            note = notes.get((ref.name, ref.kind)) or "no wall found"
+            out.append(f"{ref.name} ({ref.kind}): {note}")
+    return out
 
 
 def write_json_atomic(data: Any, path: Path) -> None:

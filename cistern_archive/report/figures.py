@@ -129,8 +129,10 @@ def map_figure(
         if 0 <= ref < len(poses.placed) and poses.placed[ref]:
             ax.scatter([poses.xy_m[ref, 0]], [poses.xy_m[ref, 1]], s=140, marker="*", c="#ffd92f",
                        edgecolors="black", linewidths=0.8, zorder=4)
-        for k in placed:
-            ax.annotate(labels[k], poses.xy_m[k], xytext=(6, 6), textcoords="offset points", fontsize=9,
+        x0, x1 = ax.get_xlim() if grid is None else grid.extent_m[:2]
+        for xy_k, text in stacked_labels(poses.xy_m[placed], [labels[k] for k in placed],
+                                         tolerance_m=0.015 * max(abs(x1 - x0), 1.0)):
+            ax.annotate(text, xy_k, xytext=(6, 6), textcoords="offset points", fontsize=9,
                         color="#08306b", fontweight="bold", zorder=5)
     handles = [Line2D([], [], color=LINK_OK, lw=2.5, label="converged match"),
                Line2D([], [], color=LINK_BAD, lw=1.5, ls="--", label="not converged"),
@@ -150,6 +152,20 @@ def map_figure(
     return FigureFile("map", path.name, "Map with scan stations and pair links",
                       f"Top-down evidence grid map{depth} with {len(placed)} scan stations and "
                       f"{len(matches)} pair-match links", caption)
+
+
+def stacked_labels(xy: np.ndarray, labels: Sequence[str], *, tolerance_m: float) -> list[tuple[np.ndarray, str]]:
+    """One label per place: stations closer than ``tolerance_m`` to an earlier one (scans taken above
+    one another at several depths) share its label, ``d1a / d2a / d3a``, instead of overprinting it."""
+    groups: list[tuple[np.ndarray, list[str]]] = []
+    for point, label in zip(np.asarray(xy, dtype=float), labels):
+        for anchor, names in groups:
+            if float(np.hypot(*(point - anchor))) <= tolerance_m:
+                names.append(label)
+                break
+        else:
+            groups.append((point, [label]))
+    return [(anchor, " / ".join(names)) for anchor, names in groups]
 
 
 def _thresholds(matcher_params: dict) -> tuple[float | None, float | None]:
@@ -428,6 +444,7 @@ def slices_figure(path: Path, grids: Sequence[EvidenceGrid], *, dpi: int) -> Fig
         _draw_grid(ax, grid)
         ax.set_xlim(xmin, xmax)
         ax.set_ylim(ymin, ymax)
+        ax.set_aspect("equal", adjustable="box")
         ax.set_title(f"depth {grid.depth_m:.2f} m", fontsize=9)
     for ax in axes[n:]:
         ax.set_axis_off()
@@ -461,5 +478,5 @@ def thumbnail(path: Path, grid: EvidenceGrid, poses: Poses | None, *, width_px: 
     ax.set_aspect("equal")
     ax.set_axis_off()
     fig.set_facecolor("white")
-    save_figure(fig, path, dpi=100)
+    save_figure(fig, path, dpi=100, tight=False)
     return path

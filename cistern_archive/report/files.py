@@ -83,9 +83,14 @@ def write_png(path: Path, image: np.ndarray) -> Path:
     return path
 
 
-def save_figure(figure: Any, path: Path, *, dpi: int) -> Path:
-    """Save a matplotlib figure as a PNG with no ``Software`` chunk (nothing time- or host-dependent)."""
-    figure.savefig(path, format="png", dpi=dpi, metadata={"Software": None}, facecolor=figure.get_facecolor())
+def save_figure(figure: Any, path: Path, *, dpi: int, tight: bool = True) -> Path:
+    """Save a matplotlib figure as a PNG with no ``Software`` chunk (nothing time- or host-dependent).
+
+    With ``tight`` the canvas is fitted to what was drawn, so that no legend or label outside the
+    axes is cut off (and no empty margin is kept); the thumbnail keeps its fixed size."""
+    extra = {"bbox_inches": "tight", "pad_inches": 0.12} if tight else {}
+    figure.savefig(path, format="png", dpi=dpi, metadata={"Software": None}, facecolor=figure.get_facecolor(),
+                   **extra)
     return path
 
 

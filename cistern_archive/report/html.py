@@ -18,6 +18,8 @@ from cistern_archive.errors import CisternError
 from cistern_archive.report.files import format_number
 
 TEMPLATES_ENV = "CISTERN_ARCHIVE_TEMPLATES"
+STATUS_TEXT = {"ok": "ok", "partial": "partial", "failed": "failed", "skipped": "skipped"}
+"""Badge text of each status (:mod:`cistern_archive.pipeline.status`; ``skipped`` is the rebuild's)."""
 REQUIRED = ("base.html.j2", "site.html.j2", "index.html.j2", "macros.html.j2", "style.css")
 
 
@@ -54,6 +56,19 @@ def number(value: float | None, digits: int = 3) -> str:
     if not text:
         return "—"
     return "\u2212" + text[1:] if text.startswith("-") and float(text) != 0 else text.lstrip("-")
+
+
+def with_interval(value: float | None, ci95: float | None, digits: int = 3) -> str:
+    """``3.470 ± 0.060``: a value with the half-width of its 95 % interval (just the value without one)."""
+    text = number(value, digits)
+    return text if ci95 is None or value is None else f"{text} ± {number(ci95, digits)}"
+
+
+def probe_count(dimension: Any) -> str:
+    """``8 of 10``: the probes a dimension's value rests on, of those the record asked for
+    (a :class:`~cistern_archive.pipeline.results.DimensionResult`)."""
+    used, asked = len(dimension.probes_m), dimension.probes_requested
+    return f"{used} of {asked}" if asked else str(used)
 
 
 @functools.lru_cache(maxsize=4)

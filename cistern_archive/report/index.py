@@ -1,5 +1,6 @@
-"""The catalog index: every site with its thumbnail, status, scans placed, last build and error, and
-one table across sites of grid-versus-reference dimension differences (the paper's Table IV)."""
+"""The catalog index: every site with its thumbnail, status (and why it is not ok), scans placed and last
+build, and one table across sites with a row per site and dimension, the map against the tape-measured
+truth and the mosaic (after the paper's Table IV), with the catalog's summary figures."""
 
 from __future__ import annotations
 
@@ -9,14 +10,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from cistern_archive import __version__
 from cistern_archive.pipeline.results import DimensionResult, SiteResult
+from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import build_time_from_env, format_time
-from cistern_archive.report.html import render_index_page, signed
+from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_index_page, signed, with_interval
 
-Status = Literal["ok", "failed", "skipped"]
-STATUS_TEXT = {"ok": "built", "failed": "failed", "skipped": "skipped"}
+Status = Literal["ok", "partial", "failed", "skipped"]
 
 
 @dataclass(frozen=True)
@@ -26,12 +29,14 @@ class IndexEntry:
     Attributes
     ----------
     site_id, name : str
-    status : {"ok", "failed", "skipped"}
+    status : {"ok", "partial", "failed", "skipped"}
     scans_placed, scans_total : int
     build_time : str
         ISO 8601 UTC of the site's last build, or empty when unknown.
     error : str
         ``stage: input: error`` of a failed build, else empty.
+    reasons : tuple of str
+        Why the site is partial or failed (``status_reasons`` of its result).
     thumbnail : str or None
         Path of the thumbnail relative to the index's folder.
     page : str
@@ -46,6 +51,7 @@ class IndexEntry:
     scans_total: int
     build_time: str = ""
     error: str = ""
+    reasons: tuple[str, ...] = ()
     thumbnail: str | None = None
     page: str = ""
     dimensions: tuple[DimensionResult, ...] = field(default_factory=tuple)
@@ -76,6 +82,7 @@ class IndexEntry:
             scans_total=len(result.scans),
             build_time=when,
             error=result.error or "",
+            reasons=tuple(result.status_reasons),
             thumbnail=thumbnail,
             page=page or f"{result.site_id}/index.html",
             dimensions=tuple(result.dimensions),
@@ -93,42 +100,93 @@ def _parse_time(text: str) -> dt.datetime | None:
         return None
 
 
-def _preferred(dimensions: Sequence[DimensionResult]) -> dict[str, DimensionResult]:
-    """One dimension per name: the one measured against a mosaic when both kinds exist (Table IV
-    compares grid and mosaic), else the tape-measure one."""
-    chosen: dict[str, DimensionResult] = {}
+@dataclass(frozen=True)
+class TableColumn:
+    """One column of the cross-site dimension table: its key in a row, heading and explanation."""
+
+    key: str
+    heading: str
+    explanation: str
+
+
+TRUTH_COLUMNS = (
+    TableColumn("truth", "Truth (m)", "the tape-measured reference"),
+    TableColumn("truth_diff", "Map − truth (m)", "signed difference; positive when the map is larger"),
+    TableColumn("truth_percent", "Map − truth (%)", "the same difference as a percentage of the truth"),
+)
+MOSAIC_COLUMNS = (
+    TableColumn("mosaic", "Mosaic (m)", "the same dimension on the team's hand-made sonar mosaic"),
+    TableColumn("mosaic_diff", "Map − mosaic (m)", "signed difference to the mosaic, as in Table IV of McVicker et al."),
+)
+COMMON_COLUMNS = (
+    TableColumn("map", "Map (m)", "mean of the probe lines measured wall to wall in the evidence grid, "
+                                  "± the half-width of its 95 % interval (probe spread, grid cell and, where "
+                                  "the localizer gives it, the pose uncertainty of the scans that saw the walls)"),
+)
+TAIL_COLUMNS = (
+    TableColumn("probes", "Probes", "probes the value rests on, of those the record asked for"),
+    TableColumn("std", "Probe std (m)", "sample standard deviation of those probes"),
+)
+
+
+def _pairs(dimensions: Sequence[DimensionResult]) -> list[tuple[str, dict[str, DimensionResult]]]:
+    """The dimensions of a site grouped by name, in order of first appearance: ``{kind: dimension}``."""
+    grouped: dict[str, dict[str, DimensionResult]] = {}
     for d in dimensions:
-        if d.name not in chosen or (chosen[d.name].reference_kind != "mosaic" and d.reference_kind == "mosaic"):
-            chosen[d.name] = d
-    return chosen
+        grouped.setdefault(d.name, {}).setdefault(d.reference_kind, d)
+    return list(grouped.items())
 
 
-def difference_table(entries: Sequence[IndexEntry]) -> tuple[list[str], list[dict]]:
-    """Columns (dimension names in order of first appearance) and one row per site with dimensions.
+def _percent(d: DimensionResult | None) -> float | None:
+    return None if d is None or d.diff_m is None else 100.0 * d.diff_m / d.reference_m
 
-    A cell is the signed difference map − reference in metres, marked † when the reference is a tape
-    measure (``truth``) rather than a mosaic (a mosaic reference is preferred when a site has both);
-    ``—`` when the site does not have that dimension or it could not be measured.
+
+def difference_table(entries: Sequence[IndexEntry]) -> tuple[list[TableColumn], list[dict]]:
+    """The columns and one row per site and dimension of the cross-site table (after Table IV).
+
+    A row shows the map's value once, measured against the tape-measured truth when the site has one
+    and against the mosaic beside it; the truth or mosaic columns appear only when some site has that
+    kind of reference. A dimension is flagged ``weak`` as in ``result.json``.
     """
-    columns: list[str] = []
-    for entry in entries:
-        for d in entry.dimensions:
-            if d.name not in columns:
-                columns.append(d.name)
+    has = {kind: any(d.reference_kind == kind for e in entries for d in e.dimensions) for kind in ("truth", "mosaic")}
+    columns = list(COMMON_COLUMNS) + (list(TRUTH_COLUMNS) if has["truth"] else []) + \
+        (list(MOSAIC_COLUMNS) if has["mosaic"] else []) + list(TAIL_COLUMNS)
     rows = []
     for entry in entries:
-        if not entry.dimensions:
-            continue
-        by_name = _preferred(entry.dimensions)
-        cells = []
-        for name in columns:
-            d = by_name.get(name)
-            if d is None or d.diff_m is None:
-                cells.append("—")
-            else:
-                cells.append(signed(d.diff_m) + (" †" if d.reference_kind == "truth" else ""))
-        rows.append({"name": entry.name, "page": entry.page, "cells": cells})
+        pairs = _pairs(entry.dimensions)
+        for k, (name, kinds) in enumerate(pairs):
+            truth, mosaic = kinds.get("truth"), kinds.get("mosaic")
+            shown = truth or mosaic
+            cells = {"map": with_interval(shown.map_m, shown.ci95_m), "truth": number(truth.reference_m) if truth else "—",
+                     "truth_diff": signed(truth.diff_m) if truth else "—", "truth_percent": signed(_percent(truth), 2),
+                     "mosaic": number(mosaic.reference_m) if mosaic else "—",
+                     "mosaic_diff": signed(mosaic.diff_m) if mosaic else "—",
+                     "probes": probe_count(shown), "std": number(shown.probe_std_m)}
+            rows.append({"site": entry.name, "site_id": entry.site_id, "page": entry.page, "dimension": name,
+                         "site_rows": len(pairs) if k == 0 else 0,
+                         "weak": shown.weak, "weak_reason": shown.weak_reason,
+                         "cells": [cells[c.key] for c in columns]})
     return columns, rows
+
+
+def summary_figures(entries: Sequence[IndexEntry]) -> list[dict[str, str]]:
+    """The catalog's summary figures, each with what it is: the median and largest absolute difference
+    to the truth and to the mosaic over the measured dimensions, and how many dimensions are weak."""
+    figures = []
+    for kind, label in (("truth", "truth"), ("mosaic", "mosaic")):
+        diffs = [abs(d.diff_m) for e in entries for d in e.dimensions if d.reference_kind == kind and d.diff_m is not None]
+        if diffs:
+            figures.append({"label": f"Map vs {label}", "value": f"median {number(float(np.median(diffs)))} m, "
+                            f"largest {number(max(diffs))} m",
+                            "explanation": f"absolute map − {label} difference over the {len(diffs)} dimensions "
+                                           f"measured against a {label} reference"})
+    shown = [d for e in entries for _, kinds in _pairs(e.dimensions) for d in [kinds.get("truth") or kinds.get("mosaic")]]
+    if shown:
+        weak = sum(1 for d in shown if d.weak)
+        figures.append({"label": "Weak dimensions", "value": f"{weak} of {len(shown)}",
+                        "explanation": "measured on fewer than half of their probes or with a probe spread "
+                                       f"above {MAX_PROBE_STD_M:.2f} m: read them with care"})
+    return figures
 
 
 def render_index(
@@ -158,6 +216,8 @@ def render_index(
         thumb_px=config.thumbnail_px // 2,
         diff_columns=columns,
         diff_rows=rows,
+        summary_figures=summary_figures(entries),
+        weak_threshold=f"{MAX_PROBE_STD_M:.2f}",
     )
     path = out_dir / "index.html"
     path.write_text(html, encoding="utf-8")

@@ -1,16 +1,9 @@
-"""The 3D model of a site: isosurface of the occupancy volume, smoothed, decimated, rendered and exported.
+"""The 3D model of a site as the report shows it: the pipeline's wall surface, rendered and exported.
 
-Sec. III-E of the paper visualises the evidence grid "using isosurface extraction". Here the volume of
-:func:`cistern_archive.grid.volume.stack_slices` is cleaned for display: occupied blobs of fewer than
-``min_blob_cells`` cells per layer (isolated echoes) are set to unknown, the occupancy is dilated by
-``dilate_cells`` horizontally so that a wall seen as a broken one-cell line becomes a continuous sheet,
-and blurred slightly. The volume is closed with a border of free space so that the surface has caps,
-and cut at ``iso_level`` with :func:`skimage.measure.marching_cubes`. The mesh is Taubin-smoothed (no
-shrinkage) and quadric-decimated to ``max_faces`` triangles. The dilation thickens walls by about a
-cell on each side; the model is for seeing the site, dimensions are measured on the grid itself.
-
-Mesh coordinates are the map frame in metres with z up (``z = -depth``); the point array ``depth_m``
-holds the depth the renders are coloured by.
+The surface itself is made from the evidence by the pipeline's mesh step
+(:func:`cistern_archive.grid.surface.wall_surface`, ``SiteBuild.mesh``); this module only renders it
+off screen from fixed views and writes the PLY. Mesh coordinates are the map frame in metres with
+z up (``z = -depth``); the point array ``depth_m`` holds the depth the renders are coloured by.
 """
 
 from __future__ import annotations
@@ -19,10 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
-from skimage.measure import marching_cubes
 
-from cistern_archive.grid.volume import Volume
 from cistern_archive.report import offscreen
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import write_png
@@ -54,96 +44,12 @@ VIEWS = (
 )
 
 
-def display_field(volume: Volume, *, min_blob_cells: int = 0, dilate_cells: int = 0, sigma_cells: float = 0.0) -> np.ndarray:
-    """The occupancy volume cleaned for meshing (see the module docstring); float32, same shape."""
-    field = np.asarray(volume.probability, dtype=np.float32).copy()
-    if min_blob_cells > 1:
-        structure = np.ones((3, 3), dtype=bool)
-        layers = {}
-        for k in range(field.shape[0]):
-            key = field[k].tobytes()
-            if key not in layers:
-                labels, n = ndimage.label(field[k] > 0.5, structure=structure)
-                sizes = np.bincount(labels.ravel(), minlength=n + 1)
-                small = (sizes < min_blob_cells) & (np.arange(n + 1) > 0)
-                layers[key] = small[labels]
-            field[k][layers[key]] = 0.5
-    if dilate_cells > 0:
-        size = 2 * dilate_cells + 1
-        field = ndimage.grey_dilation(field, size=(1, size, size))
-    if sigma_cells > 0:
-        sigma_z = sigma_cells * volume.cell_m / volume.dz_m
-        field = ndimage.gaussian_filter(field, sigma=(sigma_z, sigma_cells, sigma_cells), mode="nearest")
-    return field
-
-
-def isosurface(volume: Volume, *, level: float, sigma_cells: float = 0.0, min_blob_cells: int = 0,
-               dilate_cells: int = 0):
-    """Triangle mesh of the surface ``probability == level`` (a :class:`pyvista.PolyData`).
-
-    Parameters
-    ----------
-    volume : Volume
-    level : float
-        Occupancy probability of the surface; unknown space is 0.5, so a level above 0.5 wraps the
-        occupied cells only.
-    sigma_cells : float, keyword-only
-        Gaussian blur (in horizontal cells; scaled to the layer spacing vertically) before meshing.
-    min_blob_cells, dilate_cells : int, keyword-only
-        Cleaning of :func:`display_field`.
-
-    Returns
-    -------
-    pyvista.PolyData or None
-        ``None`` when no voxel reaches ``level``.
-    """
-    import pyvista
-
-    field = display_field(volume, min_blob_cells=min_blob_cells, dilate_cells=dilate_cells, sigma_cells=sigma_cells)
-    if not np.any(field >= level):
-        return None
-    padded = np.pad(field, 1, mode="constant", constant_values=0.0)
-    verts, faces, _, _ = marching_cubes(
-        padded, level=level, spacing=(volume.dz_m, volume.cell_m, volume.cell_m), allow_degenerate=False
-    )
-    depth = volume.depths_m[0] + verts[:, 0] - volume.dz_m
-    x = volume.origin_xy_m[0] + verts[:, 2] - volume.cell_m + 0.5 * volume.cell_m
-    y = volume.origin_xy_m[1] + verts[:, 1] - volume.cell_m + 0.5 * volume.cell_m
-    points = np.column_stack([x, y, -depth]).astype(np.float64)
-    cells = np.column_stack([np.full(len(faces), 3), faces]).astype(np.int64).ravel()
-    return pyvista.PolyData(points, cells)
-
-
-def build_mesh(volume: Volume, config: ReportConfig):
-    """Isosurface, smooth and decimate; returns the mesh with ``depth_m`` and normals, or ``None``."""
-    mesh = isosurface(volume, level=config.iso_level, sigma_cells=config.smooth_sigma_cells,
-                      min_blob_cells=config.min_blob_cells, dilate_cells=config.dilate_cells)
-    if mesh is None or mesh.n_cells == 0:
-        return None
-    mesh = drop_specks(mesh, config.min_component_fraction)
-    if config.smooth_iterations:
-        mesh = mesh.smooth_taubin(n_iter=config.smooth_iterations, pass_band=0.1)
-    if mesh.n_cells > config.max_faces:
-        mesh = mesh.decimate(1.0 - config.max_faces / mesh.n_cells, volume_preservation=True)
-    mesh = mesh.compute_normals(cell_normals=False, point_normals=True, split_vertices=False, auto_orient_normals=False)
-    mesh.point_data["depth_m"] = (-mesh.points[:, 2]).astype(np.float32)
-    return mesh
-
-
-def drop_specks(mesh, min_fraction: float):
-    """Remove connected pieces smaller than ``min_fraction`` of the mesh's triangles: isolated
-    echoes (multipath, fish, the vehicle's tether) would otherwise stand as thin columns in the model."""
-    if min_fraction <= 0 or mesh.n_cells == 0:
-        return mesh
-    labelled = mesh.connectivity("all")
-    regions = np.asarray(labelled.cell_data["RegionId"])
-    sizes = np.bincount(regions)
-    keep = np.flatnonzero(sizes >= min_fraction * mesh.n_cells)
-    if len(keep) == len(sizes):
-        return mesh
-    kept = labelled.extract_cells(np.flatnonzero(np.isin(regions, keep))).extract_surface(algorithm="dataset_surface")
-    kept.clear_data()
-    return kept
+def render_mesh(surface):
+    """The pipeline's :class:`~cistern_archive.grid.surface.SurfaceMesh` as a pyvista mesh with
+    ``depth_m`` and point normals, for rendering and export."""
+    mesh = surface.to_pyvista()
+    return mesh.compute_normals(cell_normals=False, point_normals=True, split_vertices=False,
+                                auto_orient_normals=False)
 
 
 def nice_length(span_m: float) -> float:
@@ -209,6 +115,12 @@ def label_offset(view: str, bounds: tuple[float, ...]) -> np.ndarray:
             "oblique-sw": np.array([0.0, -step, 0.0])}.get(view, np.array([0.0, 0.0, -step]))
 
 
+def depth_annotations(depth_range: tuple[float, float], n: int = 5) -> dict[float, str]:
+    """Colour-bar labels: ``n`` depths from the shallowest (top of the bar) to the deepest, placed at
+    their elevation (``-depth``), the scalar the renders are coloured by."""
+    return {float(-d): f"{d:.1f}" for d in np.linspace(depth_range[0], depth_range[1], n)}
+
+
 def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tuple[float, float]) -> dict[str, str]:
     """Render :data:`VIEWS` off screen into ``out_dir/model-<view>.png``.
 
@@ -229,13 +141,17 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
     section = _section(mesh)
     if section.n_points == 0:
         section = mesh
+    for shown in (mesh, section):
+        shown.point_data["elevation_m"] = -np.asarray(shown.point_data["depth_m"], dtype=np.float32)
     plotter = pyvista.Plotter(off_screen=True, window_size=list(config.window_px))
     try:
         plotter.set_background("white")
-        style = dict(scalars="depth_m", cmap=COLORMAP, clim=depth_range, smooth_shading=True, specular=0.2)
-        bar = dict(title="Depth (m)", color="black", vertical=True, n_labels=5, fmt="%.1f", position_x=0.86,
+        # Coloured by elevation so that the bar runs the model's way (shallow at the top), labelled in depth.
+        style = dict(scalars="elevation_m", cmap=COLORMAP + "_r", clim=(-depth_range[1], -depth_range[0]),
+                     smooth_shading=True, specular=0.2)
+        bar = dict(title="Depth (m)", color="black", vertical=True, n_labels=0, position_x=0.86,
                    position_y=0.12, width=0.07, height=0.76, title_font_size=22, label_font_size=18)
-        whole = plotter.add_mesh(mesh, scalar_bar_args=bar, **style)
+        whole = plotter.add_mesh(mesh, scalar_bar_args=bar, annotations=depth_annotations(depth_range), **style)
         cut = plotter.add_mesh(section, show_scalar_bar=False, **style)
         for view in VIEWS:
             plotter.suppress_rendering = True

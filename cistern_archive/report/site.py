@@ -8,10 +8,9 @@ Every file name is fixed or derived from a title; nothing depends on the clock u
 
 from __future__ import annotations
 
-import json
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +19,10 @@ import numpy as np
 from cistern_archive import __version__
 from cistern_archive.errors import CisternError
 from cistern_archive.evaluation import scan_position_errors
-from cistern_archive.grid.volume import stack_slices
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
+from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import figures as fig
-from cistern_archive.report import model3d, offscreen
+from cistern_archive.report import geotiff, model3d, offscreen, pdf, plan, viewer
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import (
     build_time_from_env,
@@ -34,7 +33,7 @@ from cistern_archive.report.files import (
     write_npz,
 )
 from cistern_archive.report.gltf import write_glb
-from cistern_archive.report.html import number, render_site_page, signed
+from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_site_page, signed, with_interval
 from cistern_archive.sonar.scan import compass_deg_from_yaw
 
 SECTION_TITLES = {
@@ -142,9 +141,9 @@ def write_arrays(build: SiteBuild, site_dir: Path) -> dict[str, str]:
 def write_tables(result: SiteResult, labels: list[str], site_dir: Path) -> dict[str, str]:
     """CSV files of the dimension, pair and scan tables."""
     write_csv(site_dir / "dimensions.csv",
-              ["name", "reference_kind", "depth_m", "map_m", "reference_m", "diff_m", "diff_percent",
+              ["name", "reference_kind", "depth_m", "map_m", "ci95_m", "reference_m", "diff_m", "diff_percent",
                "probe_std_m", "n_probes", "probes_m"],
-              [[d.name, d.reference_kind, d.depth_m, d.map_m, d.reference_m, d.diff_m,
+              [[d.name, d.reference_kind, d.depth_m, d.map_m, d.ci95_m, d.reference_m, d.diff_m,
                 None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m, d.probe_std_m, len(d.probes_m),
                 ";".join(format_number(p, 4) for p in d.probes_m)] for d in result.dimensions])
     write_csv(site_dir / "pairs.csv",
@@ -224,29 +223,32 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
 
 
 def build_model(build: SiteBuild, site_dir: Path, config: ReportConfig) -> ModelOutcome:
-    """Volume → mesh → PLY and GLB exports → off-screen renders (when rendering works here)."""
+    """The pipeline's wall surface → PLY and GLB exports → off-screen renders (when rendering works here)."""
     if not config.model:
         return ModelOutcome(missing="The 3D model was not requested for this report.")
     if build.map_result is None or not build.map_result.grids:
         return ModelOutcome(missing="No 3D model: the build stopped before the mapping stage.")
-    volume = stack_slices(build.map_result, dz_m=config.dz_m, extend_m=config.extend_m)
-    mesh = model3d.build_mesh(volume, config)
-    if mesh is None:
-        return ModelOutcome(missing=f"No 3D model: no cell of the map reaches occupancy {config.iso_level:g}.")
-    depth_range = (float(volume.depths_m[0]), float(volume.depths_m[-1]))
+    if build.mesh is None:
+        return ModelOutcome(missing="No 3D model: no wall was seen next to the water the vehicle was in.")
+    surface = build.mesh
+    mesh = model3d.render_mesh(surface)
+    depth_range = surface.depth_range_m
     files = {"mesh-ply": model3d.export_ply(mesh, site_dir / "model.ply").name,
              "mesh-gltf": write_glb(site_dir / "model.glb", mesh, colormap=model3d.COLORMAP,
                                     depth_range=depth_range).name}
-    n = len(volume.slice_depths_m)
-    note = (f"one slice at {volume.slice_depths_m[0]:.2f} m extruded vertically from {depth_range[0]:.2f} m to "
-            f"{depth_range[1]:.2f} m, as in the paper" if n == 1 else
-            f"{n} slices from {volume.slice_depths_m[0]:.2f} m to {volume.slice_depths_m[-1]:.2f} m, "
-            "walls interpolated between them")
-    note += f"; {mesh.n_cells} triangles"
+    depths = surface.slice_depths_m
+    note = (f"one slice at {depths[0]:.2f} m extruded vertically from {depth_range[0]:.2f} m to "
+            f"{depth_range[1]:.2f} m, as in the paper" if len(depths) == 1 else
+            f"{len(depths)} slices from {depths[0]:.2f} m to {depths[-1]:.2f} m, walls curved through them")
+    note += f"; {surface.n_triangles} triangles"
     reason = offscreen.probe()
     if reason:
+        if config.viewer:
+            files.update(viewer.write_viewer(site_dir, site_dir / files["mesh-gltf"]))
         return ModelOutcome(files=files, note=note, missing=f"3D views not rendered: {reason}. The mesh is still "
                                                             "available under Downloads.")
+    if config.viewer:
+        files.update(viewer.write_viewer(site_dir, site_dir / files["mesh-gltf"]))
     rendered = model3d.render_views(mesh, site_dir, config, depth_range=depth_range)
     views = [fig.FigureFile(f"model-{v.key}", rendered[v.key], v.title, v.alt, v.caption)
              for v in model3d.VIEWS if v.key in rendered]
@@ -268,10 +270,29 @@ def _dimension_rows(result: SiteResult) -> list[dict[str, str]]:
     rows = []
     for d in result.dimensions:
         percent = None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m
-        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": number(d.map_m),
+        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": with_interval(d.map_m, d.ci95_m),
                      "reference": number(d.reference_m), "diff": signed(d.diff_m), "percent": signed(percent, 2),
-                     "std": number(d.probe_std_m), "probes": str(len(d.probes_m)), "note": d.note})
+                     "std": number(d.probe_std_m), "probes": probe_count(d), "weak": d.weak,
+                     "note": "; ".join(n for n in (d.weak_reason and f"weak: {d.weak_reason}", d.note) if n)})
     return rows
+
+
+STAT_EXPLANATIONS = {
+    "percent_difference": "the paper's percent difference (Sec. IV) between the map's width/length ratio a and "
+                          "the true ratio b, 100 |a − b| / ((a + b) / 2): how far the map's shape is from the "
+                          "truth, whatever its scale (not the per-dimension column of the table)",
+    "max_abs_diff_m": "largest |map − reference| over the rows of the table, truth and mosaic",
+    "mean_abs_diff_m": "mean |map − reference| over the rows of the table, truth and mosaic",
+}
+
+
+def stat_explanation(key: str) -> str:
+    """What a summary statistic of the comparator is (``probe_std_<name>_m`` and the fixed keys)."""
+    if key in STAT_EXPLANATIONS:
+        return STAT_EXPLANATIONS[key]
+    if key.startswith("probe_std_") and key.endswith("_m"):
+        return f"sample standard deviation of the probes of '{key[len('probe_std_'):-2].replace('_', ' ')}' (truth)"
+    return ""
 
 
 def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
@@ -286,8 +307,27 @@ def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
             label = label.replace(" pct", "")
         else:
             text = number(value, 3)
-        rows.append({"label": label, "value": text})
+        rows.append({"label": label, "value": text, "explanation": stat_explanation(key)})
     return rows
+
+
+def parameter_text(value: Any) -> str:
+    """A parameter value as a reader writes it: numbers and words as they are, lists comma-separated,
+    mappings as ``key: value`` pairs."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, dict):
+        return "; ".join(f"{k}: {parameter_text(v)}" for k, v in sorted(value.items())) or "none"
+    if isinstance(value, list | tuple):
+        return ", ".join(parameter_text(v) for v in value) or "none"
+    return "none" if value is None else str(value)
+
+
+def parameter_items(params: dict[str, Any]) -> list[dict[str, str]]:
+    """``[{"key", "value"}]`` of a plugin's parameters, sorted by name."""
+    return [{"key": key, "value": parameter_text(params[key])} for key in sorted(params)]
 
 
 def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], model: ModelOutcome,
@@ -327,17 +367,18 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     provenance = result.provenance
     plugins = [] if provenance is None else [
         {"stage": p.stage, "plugin": p.plugin, "distribution": p.distribution, "version": p.version,
-         "params": json.dumps(p.params, sort_keys=True, default=str) if p.params else "defaults"}
+         "params": parameter_items(p.params)}
         for p in provenance.plugins]
     seeds = [] if provenance is None else sorted(provenance.seeds.items())
     reference = result.reference_scan
-    status_text = {"ok": "built", "failed": "failed"}.get(result.status, result.status)
+    status_text = STATUS_TEXT.get(result.status, result.status)
     return {
         "version": __version__,
         "build_time": format_time(build_time_from_env()),
         "result": result,
         "record": build.record,
         "status_text": status_text,
+        "weak_threshold": f"{MAX_PROBE_STD_M:.2f}",
         "ids": ids,
         "sections": sections,
         "location": location_text(build.record),
@@ -347,6 +388,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "dimension_stats": _stat_rows(result.dimension_stats),
         "figures": figures,
         "views": [views[id(f)] for f in model.views],
+        "viewer_scripts": viewer.script_sources() if "viewer-model" in model.files else [],
         "model_note": model.note,
         "model_missing": model.missing,
         "dimensions": _dimension_rows(result),
@@ -368,6 +410,11 @@ DOWNLOADS = (
     ("grid", "Evidence grids", "log-odds of every depth slice with origin, cell size and depth (NumPy .npz)"),
     ("mesh-ply", "3D model (PLY)", "triangle mesh, map frame in metres, z up"),
     ("mesh-gltf", "3D model (glTF binary)", "self-contained .glb coloured by depth, for any glTF viewer"),
+    ("grid-tif", "Evidence grid (GeoTIFF)", "occupancy per depth slice in its UTM zone (WGS 84), for GIS"),
+    ("grid-tfw", "World file of the GeoTIFF", "the same georeferencing for software that reads world files"),
+    ("plan-dxf", "Plan (DXF)", "wall outline at every mapped depth, one layer per depth, metres, for CAD"),
+    ("plan-svg", "Plan (SVG)", "the same outlines north up with a scale bar and north arrow, for print"),
+    ("report-pdf", "Report (PDF)", "this page printed, for the archive"),
     ("result", "Result (JSON)", "the site's result.json: poses, pairs, dimensions, provenance, timings"),
     ("dimensions-csv", "Dimension table (CSV)", "map vs reference for every measured dimension"),
     ("pairs-csv", "Pair table (CSV)", "every pair match"),
@@ -375,9 +422,10 @@ DOWNLOADS = (
 )
 
 
-UNSIZED_DOWNLOADS = frozenset({"result"})
+UNSIZED_DOWNLOADS = frozenset({"result", "report-pdf"})
 """Downloads whose size is not printed: ``result.json`` holds the build's timings, so its size changes
-from build to build and would make the page differ while nothing else has."""
+from build to build and would make the page differ while nothing else has; ``report.pdf`` is printed
+from the finished page."""
 
 
 def _downloads(artifacts: dict[str, str], site_dir: Path) -> list[dict[str, str]]:
@@ -429,18 +477,43 @@ def render_site(build: SiteBuild, site_dir: Path, *, config: ReportConfig | None
         artifacts[Path(f.file).stem] = f.file
     model = build_model(build, site_dir, config)
     artifacts.update(model.files)
+    artifacts.update(write_plan(build, site_dir))
+    if build.map_result is not None and build.map_result.grids and geotiff.georeferenced(build.record):
+        location = build.record.location
+        tif, world = geotiff.write_geotiff(site_dir / "grid.tif", build.map_result, location.latitude,
+                                           location.longitude)
+        artifacts.update({"grid-tif": tif.name, "grid-tfw": world.name})
     artifacts.update(write_tables(build.result, labels, site_dir))
     artifacts["result"] = "result.json"
     artifacts["page"] = "index.html"
-    artifacts = dict(sorted(artifacts.items()))
-    result = build.result.model_copy(update={"artifacts": artifacts})
-    (site_dir / "result.json").write_text(result.model_dump_json(indent=2) + "\n", encoding="utf-8")
-    context = page_context(SiteBuild(result=result, record=build.record, raw_scans=build.raw_scans,
-                                     range_scans=build.range_scans, matches=build.matches, poses=build.poses,
-                                     map_result=build.map_result, table=build.table),
-                           labels, drawn, model, _downloads(artifacts, site_dir), site_dir)
-    (site_dir / "index.html").write_text(render_site_page(**context), encoding="utf-8")
+    if config.pdf and pdf.chromium_path() is not None:
+        artifacts["report-pdf"] = "report.pdf"
+
+    def write_page(artifacts: dict[str, str]) -> dict[str, str]:
+        artifacts = dict(sorted(artifacts.items()))
+        result = build.result.model_copy(update={"artifacts": artifacts})
+        (site_dir / "result.json").write_text(result.model_dump_json(indent=2) + "\n", encoding="utf-8")
+        context = page_context(replace(build, result=result), labels, drawn, model,
+                               _downloads(artifacts, site_dir), site_dir)
+        (site_dir / "index.html").write_text(render_site_page(**context), encoding="utf-8")
+        return artifacts
+
+    artifacts = write_page(artifacts)
+    if "report-pdf" in artifacts and pdf.print_pdf(site_dir / "index.html", site_dir / "report.pdf",
+                                                   when=build_time_from_env()):
+        artifacts = write_page({k: v for k, v in artifacts.items() if k != "report-pdf"})
     return artifacts
+
+
+def write_plan(build: SiteBuild, site_dir: Path) -> dict[str, str]:
+    """``plan.dxf`` and ``plan.svg``: the wall outline at every mapped depth (:mod:`cistern_archive.report.plan`)."""
+    if build.mesh is None:
+        return {}
+    outlines = plan.outlines(build.mesh)
+    if not outlines:
+        return {}
+    return {"plan-dxf": plan.write_dxf(site_dir / "plan.dxf", outlines).name,
+            "plan-svg": plan.write_svg(site_dir / "plan.svg", outlines, title=f"{build.record.name}: plan").name}
 
 
 IMG_SRC = re.compile(r'<img[^>]+src="([^"]+)"')

@@ -13,7 +13,8 @@ Order of a rebuild of ``OUT``:
    on, restoring damaged ones from intact originals; scan files their reader refuses from the headers
    are not copied) and compute its build key; a site whose inputs cannot be read fails alone, an
    archive that cannot be written stops the rebuild (:class:`~cistern_archive.errors.EnvironmentProblem`);
-4. skip the sites whose published ``build.json`` has the same key and status ``ok`` (unless ``force``);
+4. skip the sites whose published ``build.json`` has the same key and status ``ok`` or ``partial``
+   (unless ``force``; a ``failed`` site is always retried);
 5. run :func:`~cistern_archive.service.worker.run_site` for the others on the chosen executor, in
    completion order, recording ``build`` and ``publish`` events and the published artifacts;
 6. render ``OUT/index.html`` from every published site (kept when the published reports it shows are
@@ -40,7 +41,7 @@ from cistern_archive.service.lock import RebuildLock
 from cistern_archive.service.publish import recover
 from cistern_archive.service.runlog import LOG_DIR, RunLog, new_run_id
 from cistern_archive.service.summary import RebuildSummary, SiteOutcome
-from cistern_archive.service.worker import BUILD_INFO, SiteTask, run_site
+from cistern_archive.service.worker import BUILD_INFO, PROGRESS_DIR, SiteTask, run_site
 
 SUMMARY_NAME = "summary.json"
 
@@ -157,10 +158,16 @@ def published_build(site_dir: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
+CURRENT_STATUSES = ("ok", "partial")
+"""Published statuses a build key can stand for: the same inputs give the same ``partial`` build
+again, while a ``failed`` one may have failed for a reason outside its inputs and is retried."""
+
+
 def is_current(site_dir: Path, key: str) -> bool:
-    """Whether the published report was built with ``key``, succeeded and is complete on disk."""
+    """Whether the published report was built with ``key``, ran to the end (``ok`` or ``partial``)
+    and is complete on disk."""
     info = published_build(site_dir)
-    if info is None or info.get("build_key") != key or info.get("status") != "ok":
+    if info is None or info.get("build_key") != key or info.get("status") not in CURRENT_STATUSES:
         return False
     files = info.get("files") or {}
     return bool(files) and all((site_dir / name).is_file() for name in files)
@@ -193,11 +200,14 @@ def _size(path: Path) -> int:
         return -1
 
 
+BUILD_EVENT_OUTCOME = {"ok": "success", "partial": "partial", "failed": "failure", "skipped": "skipped"}
+
+
 def _record_outcome(archive: Archive, run_id: str, outcome: SiteOutcome, out: Path) -> None:
     """``build`` event, and for a published site its artifacts and a ``publish`` event."""
     index = archive.index
     with index.transaction():
-        index.add_event("build", agent=archive.agent, outcome="success" if outcome.status == "ok" else "failure",
+        index.add_event("build", agent=archive.agent, outcome=BUILD_EVENT_OUTCOME[outcome.status],
                         run_id=run_id, site_id=outcome.id,
                         detail={"build_key": outcome.build_key, "error": outcome.error, "worker": outcome.worker,
                                 "seconds": outcome.timings_s.get("wall")})
@@ -215,8 +225,17 @@ def _log_outcome(log: RunLog, outcome: SiteOutcome) -> None:
     line = f"site {outcome.id}: {outcome.status}{took} (key {outcome.build_key[:12]}, worker {outcome.worker})"
     if outcome.status == "failed":
         log.write(f"{line}: {outcome.error}\n{outcome.detail}".rstrip(), "ERROR")
+    elif outcome.status == "partial":
+        log.write(f"{line}: {'; '.join(outcome.reasons)}", "WARN")
     else:
         log.write(line)
+
+
+def clear_progress(out: Path) -> None:
+    """Remove the stage markers of the workers (``OUT/.progress``; any left by a killed rebuild)."""
+    import shutil
+
+    shutil.rmtree(out / PROGRESS_DIR, ignore_errors=True)
 
 
 def published_sites(out: Path, site_ids: list[str]) -> list[str]:
@@ -365,6 +384,7 @@ def rebuild(
         if lock.stale:
             log.write(f"took over a stale lock left by pid {lock.stale.get('pid')} (not running)", "WARN")
         summary.recovered = recover(out)
+        clear_progress(out)
         for action in summary.recovered:
             log.write(f"recovery: {action}", "WARN")
         # A plugin that fails to import fails the sites that use it (exit 1), not the catalog (exit 2).
@@ -382,7 +402,8 @@ def rebuild(
                 log.write(f"recovery: {repair}", "WARN")
             todo = [p for p in plans if force or not is_current(out / p.site_id, p.key.key)]
             skipped = [SiteOutcome(id=p.site_id, status="skipped", build_key=p.key.key,
-                                   report=f"{p.site_id}/index.html")
+                                   report=f"{p.site_id}/index.html",
+                                   report_status=(published_build(out / p.site_id) or {}).get("status"))
                        for p in plans if p not in todo]
             summary.sites.extend(skipped)
             for outcome in skipped:
@@ -390,6 +411,7 @@ def rebuild(
             _execute(todo, summary, store, log, progress, out=out, catalog=catalog, workers=workers,
                      scheduler=scheduler, scheduler_file=scheduler_file, skipped=len(skipped),
                      report_config=report_config)
+            clear_progress(out)
             summary.sites.sort(key=lambda s: s.id)
             summary.index_sites = published_sites(out, [loaded.record.id for loaded in report.records])
             summary.index_key = index_key(out, summary.index_sites, summary.code_version)
@@ -404,7 +426,8 @@ def rebuild(
                                    executor=summary.executor)
         summary.write(out / SUMMARY_NAME)
         counts = summary.counts()
-        log.write(f"done in {summary.seconds:.2f} s: {counts['ok']} built, {counts['failed']} failed, "
+        log.write(f"done in {summary.seconds:.2f} s: {counts['ok']} ok, {counts['partial']} partial, "
+                  f"{counts['failed']} failed, "
                   f"{counts['skipped']} skipped; exit code {130 if summary.interrupted else summary.exit_code}")
     if summary.interrupted:
         raise KeyboardInterrupt

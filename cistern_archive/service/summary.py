@@ -19,7 +19,12 @@ class SiteOutcome(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     id: str
-    status: Literal["ok", "failed", "skipped"]
+    status: Literal["ok", "partial", "failed", "skipped"] = Field(
+        description="ok: every scan placed and every dimension measured; partial: built, but not all of them; "
+                    "failed: stopped or nothing placed; skipped: unchanged since its last build")
+    reasons: list[str] = Field(default_factory=list, description="why the site is partial or failed")
+    report_status: Literal["ok", "partial", "failed"] | None = Field(
+        default=None, description="status of the report now published (of its last build when skipped)")
     error: str | None = None
     detail: str = Field(default="", description="traceback of the error (also in the run log)")
     build_key: str
@@ -58,7 +63,7 @@ class RebuildSummary(BaseModel):
     seconds: float = 0.0
 
     def counts(self) -> dict[str, int]:
-        counts = {"ok": 0, "failed": 0, "skipped": 0}
+        counts = {"ok": 0, "partial": 0, "failed": 0, "skipped": 0}
         for site in self.sites:
             counts[site.status] += 1
         return counts
@@ -68,11 +73,17 @@ class RebuildSummary(BaseModel):
         return [s for s in self.sites if s.status == "failed"]
 
     @property
+    def not_ok(self) -> list[SiteOutcome]:
+        """The sites built in this run that are partial or failed."""
+        return [s for s in self.sites if s.status in ("partial", "failed")]
+
+    @property
     def exit_code(self) -> int:
-        """2 when the catalog had problems, 1 when a site failed, else 0 (130 is the caller's)."""
+        """2 when the catalog had problems, 1 when a site is partial or failed, 0 when every site is
+        ok or skipped (130 is the caller's)."""
         if self.catalog_problems:
             return EXIT_USAGE
-        return EXIT_SITES_FAILED if self.failed else EXIT_OK
+        return EXIT_SITES_FAILED if self.not_ok else EXIT_OK
 
     def write(self, path: Path) -> Path:
         from cistern_archive.pipeline.runner import write_json_atomic

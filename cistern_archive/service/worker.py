@@ -105,6 +105,36 @@ def check_inputs(task: "SiteTask", loaded) -> None:
                                "the file changed or is damaged")
 
 
+PROGRESS_DIR = ".progress"
+"""``OUT/.progress/<site-id>`` holds the stage a worker is running for that site, while it runs."""
+
+
+class StageMarker:
+    """Writes the running stage of one site to ``OUT/.progress/<site-id>`` (renamed into place, so a
+    reader never sees half a name) and removes it when the site is done. Best effort: a worker on
+    another host whose ``OUT`` is not shared just shows nothing."""
+
+    def __init__(self, out: Path, site_id: str) -> None:
+        self.path = out / PROGRESS_DIR / site_id
+
+    def __call__(self, stage: str) -> None:
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_name(f".{self.path.name}.tmp")
+            tmp.write_text(stage, encoding="utf-8")
+            os.replace(tmp, self.path)
+        except OSError:
+            pass
+
+    def clear(self) -> None:
+        """Remove the marker, and the folder when no other site is running."""
+        try:
+            self.path.unlink(missing_ok=True)
+            self.path.parent.rmdir()
+        except OSError:  # absent, or another worker's marker is still there
+            pass
+
+
 @dataclass(frozen=True)
 class SiteTask:
     """Everything a worker needs to build one site (plain values, cheap to pickle)."""
@@ -148,7 +178,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
     Returns
     -------
     SiteOutcome
-        ``ok`` or ``failed``; on failure ``error`` says where, and the previous report (if any) is kept
+        ``ok``, ``partial`` or ``failed`` (with ``reasons``); on failure ``error`` says where, and the previous report (if any) is kept
         unless the failure was a pipeline stage (whose failure report is published).
     """
     from cistern_archive.catalog.loader import load_record
@@ -160,12 +190,14 @@ def run_site(task: SiteTask) -> SiteOutcome:
     timings: dict[str, float] = {}
     staged: Path | None = None
     out = Path(task.out)
+    marker = StageMarker(out, task.site_id)
     try:
         staged = staging_dir(out, task.site_id)
         loaded = load_record(Path(task.record_path), Path(task.catalog_root))
         check_inputs(task, loaded)
-        build = build_site(loaded)
+        build = build_site(loaded, on_stage=marker)
         timings.update(build.result.timings_s)
+        marker("report")
         tick = time.perf_counter()
         write_site_result(build, staged)
         render_site(build, staged, config=ReportConfig(**(task.report_config or {})))
@@ -178,20 +210,23 @@ def run_site(task: SiteTask) -> SiteOutcome:
         tick = time.perf_counter()
         if not holds_lock(out, task.run_id):
             raise LostLock(f"{out}: rebuild {task.run_id} no longer holds the lock; {task.site_id} not published")
+        marker("publish")
         publish(staged, out / task.site_id)
         staged = None
         timings["publish"] = round(time.perf_counter() - tick, 6)
-        status, error = build.result.status, build.result.error
+        status, error, reasons = build.result.status, build.result.error, list(build.result.status_reasons)
         detail = build.result.failure.traceback if build.result.failure else ""
     except Exception as exc:
-        status, files = "failed", {}
+        status, files, reasons = "failed", {}, []
         error = f"{type(exc).__name__}: {exc}"
         detail = traceback.format_exc(limit=12)
     finally:
+        marker.clear()
         if staged is not None:
             discard(staged)
     timings["wall"] = round(time.perf_counter() - start, 6)
     timings["cpu"] = round(time.process_time() - cpu_start, 6)
-    return SiteOutcome(id=task.site_id, status=status, error=error, build_key=task.build_key, timings_s=timings,
+    return SiteOutcome(id=task.site_id, status=status, reasons=reasons or ([error] if error else []),
+                       report_status=status if files else None, error=error, build_key=task.build_key, timings_s=timings,
                        report=f"{task.site_id}/index.html" if files else None, worker=worker_name(),
                        peak_rss_mb=peak_rss_mb(), attempts=1, artifacts=files, detail=detail)

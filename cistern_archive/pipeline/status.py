@@ -1,0 +1,107 @@
+"""How far a site build can be trusted: the site's status and the dimensions flagged weak.
+
+A site is
+
+* ``ok`` when the pipeline ran to the end, every scan was placed and every reference dimension was
+  measured;
+* ``partial`` when it ran to the end but some scan is unplaced or some dimension could not be measured
+  (the report shows what was reached, with the reasons);
+* ``failed`` when a stage stopped the build, or no scan at all could be placed.
+
+A measured dimension is *weak* when it rests on fewer than :data:`MIN_PROBE_FRACTION` of the probes the
+record asked for, or when its probes spread (sample standard deviation) by more than
+:data:`MAX_PROBE_STD_M`: the probes then cross different walls (gaps, sloping or irregular walls) and
+their mean is not one wall-to-wall distance. Weak dimensions do not change the status; they are
+flagged in every table and in ``result.json``.
+
+Reasons speak of stations by their labels: :func:`label_indices` rewrites the 0-based scan indices that
+stages use internally (``scan 3``, ``(3,4)``) into the record's station labels.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from typing import Literal
+
+SiteStatus = Literal["ok", "partial", "failed"]
+
+MIN_PROBE_FRACTION = 0.5
+"""A dimension measured on fewer than this share of its requested probes is weak."""
+MAX_PROBE_STD_M = 0.20
+"""A dimension whose probes spread by more than this (sample std, metres) is weak."""
+
+_SCAN_INDEX = re.compile(r"\b(scans?|station index) (\d+)\b")
+_PAIR_INDEX = re.compile(r"\((\d+), ?(\d+)\)(?!\s*m\b)")
+
+
+def label_indices(text: str, labels: Sequence[str]) -> str:
+    """``text`` with 0-based scan indices replaced by station labels.
+
+    ``scan 3`` becomes ``scan w4`` and a pair ``(3,4)`` becomes ``(w4 → w5)`` when ``labels[3]`` is
+    ``w4``; indices out of range are left as they are.
+
+    Examples
+    --------
+    >>> label_indices("no converged path to reference scan 0: (0,1): not converged", ["s1", "s2"])
+    'no converged path to reference scan s1: (s1 → s2): not converged'
+    """
+    def scan(match: re.Match) -> str:
+        k = int(match.group(2))
+        return f"{match.group(1)} {labels[k]}" if 0 <= k < len(labels) else match.group(0)
+
+    def pair(match: re.Match) -> str:
+        i, j = int(match.group(1)), int(match.group(2))
+        if 0 <= i < len(labels) and 0 <= j < len(labels):
+            return f"({labels[i]} → {labels[j]})"
+        return match.group(0)
+
+    return _PAIR_INDEX.sub(pair, _SCAN_INDEX.sub(scan, text))
+
+
+def weakness(n_probes: int, n_requested: int, probe_std_m: float | None) -> str:
+    """Why a measured dimension is weak (see the module docstring), or ``""`` when it is not."""
+    reasons = []
+    if n_requested > 1 and n_probes < MIN_PROBE_FRACTION * n_requested:
+        reasons.append(f"measured on {n_probes} of {n_requested} probes (fewer than half)")
+    if probe_std_m is not None and math.isfinite(probe_std_m) and probe_std_m > MAX_PROBE_STD_M:
+        reasons.append(f"probe spread {probe_std_m:.2f} m above {MAX_PROBE_STD_M:.2f} m")
+    return "; ".join(reasons)
+
+
+def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], labels: Sequence[str],
+                unmeasured: Sequence[str]) -> tuple[SiteStatus, list[str]]:
+    """The status of a site build and the reasons it is not ``ok``.
+
+    Parameters
+    ----------
+    failed_stage : str or None
+        ``stage: input: error`` of the stage that stopped the build, ``None`` when it ran to the end.
+    scans_placed : sequence of bool
+        One flag per scan of the record.
+    labels : sequence of str
+        Station label per scan.
+    unmeasured : sequence of str
+        Names of the reference dimensions that could not be measured, each with its reason.
+
+    Returns
+    -------
+    status : {"ok", "partial", "failed"}
+    reasons : list of str
+        One line per problem, naming stations by label; empty when ``ok``.
+    """
+    reasons: list[str] = []
+    if failed_stage is not None:
+        reasons.append(f"the build stopped at {failed_stage}")
+    n_placed = sum(bool(p) for p in scans_placed)
+    if scans_placed and n_placed == 0 and failed_stage is None:
+        reasons.append(f"none of the {len(scans_placed)} scans could be placed")
+    elif n_placed < len(scans_placed) and failed_stage is None:
+        unplaced = [labels[k] for k, p in enumerate(scans_placed) if not p]
+        reasons.append(f"{len(unplaced)} of {len(scans_placed)} scans not placed ({', '.join(unplaced)})")
+    if failed_stage is None and n_placed > 0:
+        reasons += [f"dimension not measured: {text}" for text in unmeasured]
+    if failed_stage is not None or (scans_placed and n_placed == 0):
+        return "failed", reasons
+    return ("partial" if reasons else "ok"), reasons

@@ -1,0 +1,113 @@
+"""Honest status: ok only when every scan is placed and every dimension measured; weak dimensions;
+station labels in reasons; the rebuild's summary and exit code."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from cistern_archive.pipeline.status import MAX_PROBE_STD_M, label_indices, site_status, weakness
+from service_helpers import CLI, make_catalog
+
+
+def test_ok_only_when_every_scan_is_placed_and_every_dimension_measured():
+    labels = ["s1", "s2", "s3"]
+    assert site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels, unmeasured=[]) == ("ok", [])
+    status, reasons = site_status(failed_stage=None, scans_placed=[True, False, True], labels=labels, unmeasured=[])
+    assert status == "partial" and reasons == ["1 of 3 scans not placed (s2)"]
+    status, reasons = site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels,
+                                  unmeasured=["width (truth): the map is empty"])
+    assert status == "partial" and reasons == ["dimension not measured: width (truth): the map is empty"]
+
+
+def test_nothing_placed_or_a_stopped_stage_is_failed():
+    status, reasons = site_status(failed_stage=None, scans_placed=[False, False], labels=["a", "b"],
+                                  unmeasured=["width (truth): the map is empty"])
+    assert status == "failed" and reasons == ["none of the 2 scans could be placed"]
+    status, reasons = site_status(failed_stage="load: a.npz: bad file", scans_placed=[False, False],
+                                  labels=["a", "b"], unmeasured=[])
+    assert status == "failed" and reasons == ["the build stopped at load: a.npz: bad file"]
+
+
+def test_weak_when_fewer_than_half_the_probes_or_a_wide_spread():
+    assert weakness(10, 10, 0.05) == ""
+    assert weakness(5, 10, 0.05) == ""  # half is enough
+    assert "2 of 10 probes" in weakness(2, 10, 0.05)
+    assert f"above {MAX_PROBE_STD_M:.2f} m" in weakness(10, 10, MAX_PROBE_STD_M + 0.01)
+    assert weakness(1, 1, None) == ""  # a single requested probe has no spread to judge
+
+
+def test_reasons_name_stations_not_indices():
+    labels = ["w1", "w2", "w3"]
+    text = ("no converged path to reference scan 0: (1,2): ambiguous: a position 1.56 m away (1.85, -0.10); "
+            "probe frame station 's2' (scan 1) is unplaced; scan 7 of another list")
+    assert label_indices(text, labels) == (
+        "no converged path to reference scan w1: (w2 → w3): ambiguous: a position 1.56 m away (1.85, -0.10); "
+        "probe frame station 's2' (scan w2) is unplaced; scan 7 of another list")
+
+
+@pytest.fixture(scope="module")
+def partial_catalog(tmp_path_factory) -> Path:
+    """Two generated cisterns; the second asks for a dimension whose probe starts far outside it."""
+    root = make_catalog(tmp_path_factory.mktemp("status") / "catalog")
+    record = root / "sites" / "cistern-001.yaml"
+    text = record.read_text()
+    assert "references:\n" in text
+    record.write_text(text.replace("references:\n", "references:\n- name: far wall\n  value_m: 3.0\n  kind: truth\n"
+                                   "  measure: {frame: s1, inside: [400.0, 400.0], direction_deg: 0.0, repeats: 4}\n",
+                                   1))
+    return root
+
+
+def test_rebuild_reports_partial_sites_and_exits_1(partial_catalog, tmp_path):
+    out = tmp_path / "site"
+    run = subprocess.run(CLI + ["rebuild", "--catalog", str(partial_catalog), "--out", str(out), "--archive",
+                                str(tmp_path / "archive")], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 1, run.stderr
+    assert "PARTIAL cistern-001: dimension not measured: far wall (truth)" in run.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    statuses = {s["id"]: (s["status"], s["report_status"]) for s in summary["sites"]}
+    assert statuses == {"cistern-000": ("ok", "ok"), "cistern-001": ("partial", "partial")}
+    result = json.loads((out / "cistern-001" / "result.json").read_text())
+    assert result["status"] == "partial" and result["status_reasons"]
+    far = next(d for d in result["dimensions"] if d["name"] == "far wall")
+    assert far["map_m"] is None and far["probes_requested"] == 4 and not far["weak"]
+    page = (out / "cistern-001" / "index.html").read_text()
+    assert 'badge badge-partial">partial<' in page and 'id="status-reasons"' in page
+    index = (out / "index.html").read_text()
+    assert "1 ok, 1 partial, 0 failed" in index
+    # unchanged partial sites are not rebuilt: the same inputs give the same partial build
+    again = subprocess.run(CLI + ["rebuild", "--catalog", str(partial_catalog), "--out", str(out), "--archive",
+                                  str(tmp_path / "archive")], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert {s["id"]: (s["status"], s["report_status"]) for s in summary["sites"]} == {
+        "cistern-000": ("skipped", "ok"), "cistern-001": ("skipped", "partial")}
+
+
+def test_workers_mark_their_running_stage_for_the_terminal(tmp_path):
+    from cistern_archive.commands.rebuild import running_stages, running_text
+    from cistern_archive.service.worker import PROGRESS_DIR, StageMarker
+
+    first, second = StageMarker(tmp_path, "well-b"), StageMarker(tmp_path, "cistern-a")
+    first("match")
+    second("load")
+    second("report")
+    assert running_stages(tmp_path / PROGRESS_DIR) == [("cistern-a", "report"), ("well-b", "match")]
+    assert running_text(running_stages(tmp_path / PROGRESS_DIR)) == "building cistern-a (report), well-b (match)"
+    first.clear()
+    second.clear()
+    assert running_stages(tmp_path / PROGRESS_DIR) == [] and running_text([]) == ""
+    assert running_stages(tmp_path / "absent") == []
+
+
+def test_build_site_announces_each_stage(partial_catalog):
+    from cistern_archive.catalog.loader import load_record
+    from cistern_archive.pipeline.runner import build_site
+
+    stages: list[str] = []
+    build_site(load_record(partial_catalog / "sites" / "cistern-000.yaml", partial_catalog), on_stage=stages.append)
+    assert stages == ["configure", "load", "segment", "match", "localize", "map", "compare", "mesh"]
