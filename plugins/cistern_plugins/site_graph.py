@@ -64,7 +64,8 @@ class SiteGraphParams(StageParams):
     global_gap: int = Field(4, ge=1, description="unjoined scans: global matches up to this many stations away")
     reach_factor: float = Field(1.0, gt=0, description="loop candidates within this times the sonar range")
     guess_radius_m: float = Field(0.5, gt=0, description="half-width of a guided match's search window")
-    level_tolerance_m: float = Field(0.25, ge=0, description="scans farther apart in depth are not matched")
+    level_tolerance_m: float = Field(0.5, ge=0, description="scans farther apart in depth are not matched "
+                                     "(depth levels of a bell-shaped cistern lie about 1 m apart)")
     consistency_m: float = Field(0.2, gt=0, description="cycle closure tolerance in translation")
     consistency_deg: float = Field(3.0, gt=0, description="cycle closure tolerance in heading")
     robust: Literal["huber", "cauchy", "none"] = "huber"
