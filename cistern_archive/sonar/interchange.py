@@ -8,7 +8,11 @@ name                dtype / shape             meaning
 ``bearings_rad``    float64 (A,)              beam bearings, sonar frame, CCW from forward
 ``intensities``     device dtype (A, B)       echo intensities, 0 .. ``full_scale``
 ``metadata``        uint8 (N,)                UTF-8 JSON object (see below)
+``beam_times_s``    float64 (A,)              schema version 2 only: time of every beam (Unix s)
 ==================  ========================  ==============================================
+
+Schema version 2 adds ``beam_times_s`` for scans taken from a moving vehicle; a scan without beam times
+is written as version 1, byte for byte as before, and both versions are read.
 
 ``metadata`` keys: ``schema`` (``"cistern-archive/scan"``), ``schema_version`` (1), ``full_scale``,
 ``bin_size_m``, ``start_range_m``, ``yaw_rad``, ``depth_m``, ``timestamp`` (Unix seconds or null),
@@ -34,13 +38,20 @@ from cistern_archive.errors import ReaderError
 from cistern_archive.sonar.scan import Scan
 
 SCHEMA = "cistern-archive/scan"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""The newest version written; :data:`READABLE_VERSIONS` are read."""
+READABLE_VERSIONS = (1, 2)
+
+
+def scan_schema_version(scan: Scan) -> int:
+    """2 when the scan has per-beam times, else 1 (the oldest version that holds the scan)."""
+    return 2 if scan.beam_times_s is not None else 1
 
 
 def scan_metadata(scan: Scan) -> dict:
     return {
         "schema": SCHEMA,
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": scan_schema_version(scan),
         "full_scale": float(scan.full_scale),
         "bin_size_m": float(scan.bin_size_m),
         "start_range_m": float(scan.start_range_m),
@@ -59,17 +70,17 @@ def write_scan(scan: Scan, path: str | os.PathLike) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = json.dumps(scan_metadata(scan), sort_keys=True, allow_nan=False).encode("utf-8")
+    arrays = {
+        "bearings_rad": np.asarray(scan.bearings_rad, dtype=np.float64),
+        "intensities": np.asarray(scan.intensities),
+        "metadata": np.frombuffer(meta, dtype=np.uint8),
+    }
+    if scan.beam_times_s is not None:
+        arrays["beam_times_s"] = np.asarray(scan.beam_times_s, dtype=np.float64)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as handle:
-            _write_npz_deterministic(
-                handle,
-                {
-                    "bearings_rad": np.asarray(scan.bearings_rad, dtype=np.float64),
-                    "intensities": np.asarray(scan.intensities),
-                    "metadata": np.frombuffer(meta, dtype=np.uint8),
-                },
-            )
+            _write_npz_deterministic(handle, arrays)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
@@ -107,6 +118,7 @@ def read_scan(path: str | os.PathLike) -> Scan:
             bearings = data["bearings_rad"]
             intensities = data["intensities"]
             meta_bytes = data["metadata"].tobytes()
+            beam_times = data["beam_times_s"] if "beam_times_s" in data.files else None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise ReaderError(str(path), f"unreadable .npz: {exc}") from None
     try:
@@ -115,8 +127,13 @@ def read_scan(path: str | os.PathLike) -> Scan:
         raise ReaderError(str(path), f"metadata is not UTF-8 JSON: {exc}") from None
     if meta.get("schema") != SCHEMA:
         raise ReaderError(str(path), f"metadata schema is {meta.get('schema')!r}, expected {SCHEMA!r}")
-    if meta.get("schema_version") != SCHEMA_VERSION:
-        raise ReaderError(str(path), f"unsupported schema_version {meta.get('schema_version')!r}")
+    version = meta.get("schema_version")
+    if version not in READABLE_VERSIONS:
+        raise ReaderError(str(path), f"unsupported schema_version {version!r}; this version reads "
+                          f"{', '.join(map(str, READABLE_VERSIONS))}")
+    if (beam_times is not None) != (version == 2):
+        raise ReaderError(str(path), "schema_version 2 needs the array beam_times_s and version 1 has none; "
+                          f"this file is version {version} {'with' if beam_times is not None else 'without'} it")
     if not np.all(np.isfinite(bearings)):
         raise ReaderError(str(path), "bearings_rad contains NaN or infinite values")
     timestamp = meta.get("timestamp")
@@ -134,6 +151,7 @@ def read_scan(path: str | os.PathLike) -> Scan:
             beam_width_rad=meta["beam_width_rad"],
             station=meta["station"],
             settings=meta.get("settings", {}),
+            beam_times_s=beam_times,
         )
     except KeyError as exc:
         raise ReaderError(str(path), f"metadata lacks {exc.args[0]!r}") from None

@@ -70,6 +70,9 @@ class Scan:
         Station label (where the vehicle landed for this sweep).
     settings : dict
         Device settings as recorded (JSON-serialisable values only).
+    beam_times_s : ndarray, shape (A,), or None
+        Time of every beam (Unix s, UTC), for a sonar on a moving vehicle; ``None`` for a stationary
+        sweep, whose beams all share :attr:`timestamp`.
     """
 
     bearings_rad: np.ndarray
@@ -84,10 +87,19 @@ class Scan:
     beam_width_rad: float = math.radians(3.0)
     station: str = ""
     settings: dict[str, Any] = field(default_factory=dict)
+    beam_times_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         bearings = np.asarray(self.bearings_rad, dtype=np.float64)
         intensities = np.asarray(self.intensities)
+        if self.beam_times_s is not None:
+            times = np.asarray(self.beam_times_s, dtype=np.float64)
+            if times.shape != bearings.shape:
+                raise ValueError(f"beam_times_s must have one time per beam {bearings.shape}, got {times.shape}")
+            if not np.all(np.isfinite(times)):
+                raise ValueError("beam_times_s contains NaN or infinite values")
+            times.setflags(write=False)
+            object.__setattr__(self, "beam_times_s", times)
         if bearings.ndim != 1:
             raise ValueError(f"bearings_rad must be 1-D, got shape {bearings.shape}")
         if intensities.ndim != 2 or intensities.shape[0] != bearings.shape[0]:
