@@ -13,28 +13,52 @@ The sonar's timestamps are shifted by ``clock_offset_s`` onto the navigation clo
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from cistern_archive.navigation.track import Track
 from cistern_archive.sonar.scan import RangeScan, Scan
 
 
-def scan_echoes(scan: Scan, *, threshold: float = 0.5, min_range_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Every echo of a scan: beam index and range of each bin at or above ``threshold`` (0–1 scale).
+def scan_echoes(scan: Scan, *, threshold: float = 0.5, min_range_m: float = 0.0, max_gap_bins: int = 2,
+                position: str = "leading") -> tuple[np.ndarray, np.ndarray]:
+    """Every echo of a scan: the beam index and range of each run of bins at or above ``threshold``.
 
-    Unlike a segmentation that keeps one range per beam, this keeps every bin above the threshold (a
-    beam through a pontoon sees the pontoon and the quay behind it).
+    Unlike a segmentation that keeps one range per beam, every separate return of a beam is kept (a
+    beam past a pontoon sees the pontoon and the quay behind it). Bins above the threshold that are
+    at most ``max_gap_bins`` apart form one echo, placed at its ``"leading"`` edge (the first bin: the
+    surface facing the sonar) or its ``"centre"``; ``"bins"`` keeps every bin as its own echo. A run is one echo, not one point per bin: a wall
+    seen at 30 m lights a run of bins along the beam (pulse length and beam footprint), and runs of
+    points radiating from the sonar would pull a scan matcher towards zero displacement.
 
     Returns
     -------
     beam : ndarray of int, shape (N,)
     range_m : ndarray, shape (N,)
-        Bin centres.
+        Bin centres (or run centres).
     """
-    beam, bins = np.nonzero(scan.normalised() >= threshold)
-    ranges = scan.bin_centres_m[bins]
+    above = scan.normalised() >= threshold
+    beam, bins = np.nonzero(above)
+    if position == "bins":
+        ranges = scan.bin_centres_m[bins]
+        keep = ranges >= min_range_m
+        return beam[keep], ranges[keep]
+    if beam.size == 0:
+        return beam, np.zeros(0)
+    new = np.ones(beam.size, dtype=bool)
+    new[1:] = (beam[1:] != beam[:-1]) | (bins[1:] - bins[:-1] > max_gap_bins)
+    first = np.flatnonzero(new)
+    last = np.append(first[1:], beam.size) - 1
+    if position == "leading":
+        centre_bin = bins[first].astype(np.float64)
+    elif position == "centre":
+        centre_bin = 0.5 * (bins[first] + bins[last])
+    else:
+        raise ValueError(f"position must be 'leading', 'centre' or 'bins', got {position!r}")
+    ranges = scan.start_range_m + (centre_bin + 0.5) * scan.bin_size_m
     keep = ranges >= min_range_m
-    return beam[keep], ranges[keep]
+    return beam[first][keep], ranges[keep]
 
 
 def body_points(bearings_rad: np.ndarray, ranges_m: np.ndarray) -> np.ndarray:
@@ -67,27 +91,36 @@ def compensate(points_body: np.ndarray, echo_times_s: np.ndarray, track: Track, 
 
 
 def compensated_range_scan(scan: Scan, track: Track, *, clock_offset_s: float = 0.0, threshold: float = 0.5,
-                           min_range_m: float = 0.0) -> tuple[RangeScan, float]:
-    """A scan's echoes, motion compensated to its mid-revolution time, as a :class:`RangeScan`.
+                           min_range_m: float = 0.0, echo_position: str = "leading",
+                           companions: Sequence[Scan] = ()) -> tuple[RangeScan, float]:
+    """A scan's echoes (:func:`scan_echoes` with ``echo_position``), motion compensated to its
+    mid-revolution time, as a :class:`RangeScan`.
 
     Every echo becomes one entry (bearing and range of the compensated point, so bearings repeat);
-    ``yaw_rad`` is the dead-reckoned heading at the reference time. Returns the scan and that time
-    (sonar clock).
+    ``yaw_rad`` is the dead-reckoned heading at the reference time, ``time_s`` that time on the
+    navigation clock and ``odometry`` the dead-reckoned pose there. The echoes of ``companions`` (e.g.
+    the neighbouring revolutions) are compensated into the same reference frame and added: a local
+    map, as dense as several revolutions, whose shape rests on dead reckoning over their span only.
+    Returns the scan and the reference time on the sonar clock.
 
     Raises
     ------
     ValueError
-        The scan has no per-beam times.
+        A scan has no per-beam times.
     """
-    if scan.beam_times_s is None:
-        raise ValueError(f"scan {scan.station or '?'} has no per-beam times; motion compensation needs them")
-    beam, ranges = scan_echoes(scan, threshold=threshold, min_range_m=min_range_m)
-    times = scan.beam_times_s
-    reference = 0.5 * (float(times.min()) + float(times.max()))
-    points = compensate(body_points(scan.bearings_rad[beam], ranges), times[beam], track, reference,
-                        clock_offset_s=clock_offset_s)
-    yaw = float(track.pose_at(reference + clock_offset_s)[2])
+    for item in (scan, *companions):
+        if item.beam_times_s is None:
+            raise ValueError(f"scan {item.station or '?'} has no per-beam times; motion compensation needs them")
+    reference = 0.5 * (float(scan.beam_times_s.min()) + float(scan.beam_times_s.max()))
+    parts = []
+    for item in (scan, *companions):
+        beam, ranges = scan_echoes(item, threshold=threshold, min_range_m=min_range_m, position=echo_position)
+        parts.append(compensate(body_points(item.bearings_rad[beam], ranges), item.beam_times_s[beam], track,
+                                reference, clock_offset_s=clock_offset_s))
+    points = np.concatenate(parts)
+    odometry = track.pose_at(reference + clock_offset_s)
     range_scan = RangeScan(bearings_rad=np.arctan2(points[:, 1], points[:, 0]), ranges_m=np.hypot(points[:, 0], points[:, 1]),
-                           yaw_rad=yaw, depth_m=scan.depth_m, max_range_m=scan.max_range_m,
-                           bin_size_m=scan.bin_size_m, beam_width_rad=scan.beam_width_rad, station=scan.station)
+                           yaw_rad=float(odometry[2]), depth_m=scan.depth_m, max_range_m=scan.max_range_m,
+                           bin_size_m=scan.bin_size_m, beam_width_rad=scan.beam_width_rad, station=scan.station,
+                           time_s=reference + clock_offset_s, odometry=odometry)
     return range_scan, reference

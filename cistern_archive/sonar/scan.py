@@ -163,6 +163,12 @@ class RangeScan:
         Radial and angular resolution, used by inverse sensor models.
     station : str
         Station label.
+    time_s : float
+        Reference time (Unix s) of a scan from a moving vehicle, its echoes motion compensated to it;
+        ``nan`` for a stationary scan.
+    odometry : ndarray, shape (3,), or None
+        Dead-reckoned ``(x, y, yaw)`` of the vehicle at ``time_s`` (map frame), for localizers that
+        use navigation (``nav-graph``); ``None`` without navigation.
     """
 
     bearings_rad: np.ndarray
@@ -173,6 +179,8 @@ class RangeScan:
     bin_size_m: float
     beam_width_rad: float
     station: str = ""
+    time_s: float = float("nan")
+    odometry: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         bearings = np.asarray(self.bearings_rad, dtype=np.float64)
@@ -183,6 +191,12 @@ class RangeScan:
         ranges.setflags(write=False)
         object.__setattr__(self, "bearings_rad", bearings)
         object.__setattr__(self, "ranges_m", ranges)
+        if self.odometry is not None:
+            odometry = np.asarray(self.odometry, dtype=np.float64)
+            if odometry.shape != (3,) or not np.all(np.isfinite(odometry)):
+                raise ValueError(f"odometry must be three finite numbers (x, y, yaw), got {self.odometry!r}")
+            odometry.setflags(write=False)
+            object.__setattr__(self, "odometry", odometry)
 
     @property
     def valid(self) -> np.ndarray:
