@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cistern_archive.navigation.calibration import Calibration, fit_start_calibration
 from cistern_archive.navigation.conventions import Convention, Revolution, best_of
@@ -53,9 +53,22 @@ class SurveyConfig(BaseModel):
                                                           "ambiguity_distance_m": 2.0, "yaw_window_deg": 2.0})
     consecutive_radius_m: float = Field(1.5, gt=0)
     localizer: str = "nav-graph"
-    localizer_params: dict = Field(default_factory=lambda: {"consecutive": False})
+    localizer_params: dict = Field(default_factory=lambda: {"consecutive": False, "loop_min_gap": 5, "loop_per_scan": 2,
+                                                            "compass_sigma_deg": 8.0})
     max_keyframes: int | None = Field(None, ge=2)
     seed: int = 20040825
+
+    @model_validator(mode="after")
+    def _disjoint_submaps(self) -> "SurveyConfig":
+        """Scans matched as loops must not share revolutions: a submap matched with itself is no evidence."""
+        gap = self.localizer_params.get("loop_min_gap", 10)
+        if self.localizer == "nav-graph" and gap <= 2 * self.submap_neighbours:
+            raise ValueError(f"loop_min_gap {gap} must exceed twice submap_neighbours ({self.submap_neighbours}): "
+                             "loop candidates would share revolutions")
+        if self.localizer_params.get("consecutive", True) and self.localizer == "nav-graph" and self.submap_neighbours:
+            raise ValueError("consecutive matches of submaps share revolutions; set localizer_params.consecutive "
+                             "to false or submap_neighbours to 0")
+        return self
 
 
 @dataclass

@@ -88,15 +88,20 @@ class Track:
         p0, p1 = self.pose_at(t0), self.pose_at(t1)
         delta = se2_between(p0, p1)
         d = float(abs(np.interp(t1, self.time, self.distance_m) - np.interp(t0, self.time, self.distance_m)))
-        n = self.noise
-        white = n.sigma_v_mps ** 2 * n.ping_interval_s * abs(t1 - t0)
-        along = math.atan2(delta[1], delta[0]) if np.hypot(delta[0], delta[1]) > 1e-9 else 0.0
-        rot = _rot(along)
-        cov_xy = white * np.eye(2) + rot @ np.diag([(n.sigma_scale * d) ** 2, (n.sigma_heading_rad * d) ** 2]) @ rot.T
-        cov = np.zeros((3, 3))
-        cov[:2, :2] = cov_xy + 1e-6 * np.eye(2)
-        cov[2, 2] = 2.0 * n.sigma_heading_rad ** 2
-        return delta, cov
+        return delta, relative_covariance(delta, d, abs(t1 - t0), self.noise)
+
+
+def relative_covariance(delta: np.ndarray, distance_m: float, elapsed_s: float, noise: OdometryNoise) -> np.ndarray:
+    """3×3 covariance of a dead-reckoned relative pose ``delta`` after ``distance_m`` travelled in
+    ``elapsed_s`` (module docstring), in the frame ``delta`` is given in."""
+    white = noise.sigma_v_mps ** 2 * noise.ping_interval_s * elapsed_s
+    along = math.atan2(delta[1], delta[0]) if np.hypot(delta[0], delta[1]) > 1e-9 else 0.0
+    rot = _rot(along)
+    cov = np.zeros((3, 3))
+    cov[:2, :2] = (white + 1e-6) * np.eye(2) + rot @ np.diag([(noise.sigma_scale * distance_m) ** 2,
+                                                              (noise.sigma_heading_rad * distance_m) ** 2]) @ rot.T
+    cov[2, 2] = 2.0 * noise.sigma_heading_rad ** 2
+    return cov
 
 
 def _rot(angle: float) -> np.ndarray:

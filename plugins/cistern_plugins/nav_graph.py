@@ -2,17 +2,20 @@
 
 For scans taken from a moving vehicle (each :class:`~cistern_archive.sonar.scan.RangeScan` carries its
 dead-reckoned ``odometry`` pose and ``time_s``; :func:`cistern_archive.navigation.motion.compensated_range_scan`),
-GTSAM solves for one ``Pose2`` per scan, ``X_k = (x_k, y_k, theta_k)`` in the map frame, and two
-calibration variables, the DVL scale ``s`` and the compass offset ``delta``:
+GTSAM solves for one ``Pose2`` per scan, ``X_k = (x_k, y_k, theta_k)`` in the map frame, and the
+calibration variables: the DVL scale ``s`` and the compass deviation
+``delta(psi) = d0 + d1 sin(psi) + d2 cos(psi)`` (a constant offset and, with ``deviation``, the
+heading-dependent one-cycle terms):
 
 * **odometry** between consecutive scans: ``R(-theta_k)(p_{k+1} - p_k) = s t_k`` and
   ``theta_{k+1} - theta_k = phi_k``, with ``(t_k, phi_k)`` the dead-reckoned relative pose and its
   covariance from :class:`~cistern_archive.navigation.track.OdometryNoise` (white velocity noise, scale
   and heading errors proportional to the distance);
-* **compass** on every scan: ``theta_k = psi_k + delta`` with ``psi_k`` the (calibrated) dead-reckoned
-  heading, ``compass_sigma_deg``, a Huber kernel (the marina walls disturb the compass);
-* **priors**: the first scan at its odometry pose (start alignment), ``s = 1 ± scale_sigma`` and
-  ``delta = 0 ± offset_sigma_deg`` (the surface calibration is the prior's mean);
+* **compass** on every scan: ``theta_k = psi_k + delta(psi_k)`` with ``psi_k`` the (calibrated)
+  dead-reckoned heading, ``compass_sigma_deg``, a Huber kernel (the marina walls disturb the compass);
+* **priors**: the first scan at its odometry pose (start alignment), ``s = 1 ± scale_sigma``,
+  ``d0 = 0 ± offset_sigma_deg`` and ``d1, d2 = 0 ± deviation_sigma_deg`` (the surface calibration is
+  the priors' mean);
 * **scan matches** ``(i, j)``: the matched displacement and yaw correction, rotated into scan i's body
   frame, as ``X_i^-1 X_j`` (``BetweenFactorPose2``), with the match's covariance floored at
   ``min_match_sigma_m`` and a Cauchy kernel.
@@ -40,7 +43,7 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.navigation.track import OdometryNoise, se2_between
+from cistern_archive.navigation.track import OdometryNoise, relative_covariance, se2_between
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
 from cistern_archive.sonar.scan import RangeScan, wrap_angle
 
@@ -59,6 +62,8 @@ class NavGraphParams(StageParams):
     scale_sigma: float = Field(0.03, gt=0)
     offset_sigma_deg: float = Field(3.0, gt=0)
     estimate_calibration: bool = True
+    deviation: bool = True
+    deviation_sigma_deg: float = Field(3.0, gt=0)
     min_match_sigma_m: float = Field(0.3, gt=0)
     min_match_sigma_deg: float = Field(1.0, gt=0)
     cauchy_k: float = Field(1.0, gt=0)
@@ -79,19 +84,10 @@ class NavGraphParams(StageParams):
 
 
 def odometry_covariance(a: RangeScan, b: RangeScan, noise: OdometryNoise) -> tuple[np.ndarray, np.ndarray]:
-    """Relative dead-reckoned pose of ``b`` in ``a``'s body frame and its covariance (the model of
-    :meth:`cistern_archive.navigation.track.Track.relative`, with the straight-line distance)."""
+    """Relative dead-reckoned pose of ``b`` in ``a``'s body frame and its covariance
+    (:func:`~cistern_archive.navigation.track.relative_covariance`, with the straight-line distance)."""
     delta = se2_between(a.odometry, b.odometry)
-    d = float(math.hypot(delta[0], delta[1]))
-    white = noise.sigma_v_mps ** 2 * noise.ping_interval_s * abs(b.time_s - a.time_s)
-    along = math.atan2(delta[1], delta[0]) if d > 1e-9 else 0.0
-    c, s = math.cos(along), math.sin(along)
-    rot = np.array([[c, -s], [s, c]])
-    cov = np.zeros((3, 3))
-    cov[:2, :2] = (white + 1e-6) * np.eye(2) + rot @ np.diag([(noise.sigma_scale * d) ** 2,
-                                                              (noise.sigma_heading_rad * d) ** 2]) @ rot.T
-    cov[2, 2] = 2.0 * noise.sigma_heading_rad ** 2
-    return delta, cov
+    return delta, relative_covariance(delta, float(math.hypot(delta[0], delta[1])), abs(b.time_s - a.time_s), noise)
 
 
 def _odometry_error(measured: np.ndarray):
@@ -118,17 +114,26 @@ def _odometry_error(measured: np.ndarray):
 
 
 def _compass_error(heading: float):
-    """Error function of the compass factor on ``(X_k, delta)``: ``theta_k - psi_k - delta``."""
+    """Error function of the compass factor on ``(X_k, d)``: ``theta_k - psi_k - deviation(psi_k)`` with
+    ``deviation(psi) = d0 + d1 sin(psi) + d2 cos(psi)`` (:func:`deviation_terms`)."""
+    terms = deviation_terms(heading)
 
     def error(factor: gtsam.CustomFactor, values: gtsam.Values, jacobians) -> np.ndarray:
         kx, kd = factor.keys()
-        err = np.array([float(wrap_angle(values.atPose2(kx).theta() - heading - values.atVector(kd)[0]))])
+        deviation = float(terms @ values.atVector(kd))
+        err = np.array([float(wrap_angle(values.atPose2(kx).theta() - heading - deviation))])
         if jacobians is not None:
             jacobians[0] = np.array([[0.0, 0.0, 1.0]])
-            jacobians[1] = np.array([[-1.0]])
+            jacobians[1] = -terms[None, :]
         return err
 
     return error
+
+
+def deviation_terms(heading: float) -> np.ndarray:
+    """``(1, sin psi, cos psi)``: the constant and one-cycle terms of a compass deviation (the classical
+    ``A + B sin psi + C cos psi`` of a magnetic compass near iron, here the marina's steel walls)."""
+    return np.array([1.0, math.sin(heading), math.cos(heading)])
 
 
 def match_measurement(scan_i: RangeScan, scan_j: RangeScan, match: MatchResult,
@@ -165,11 +170,13 @@ class _Graph:
         for k in nodes:
             self.initial.insert(k, gtsam.Pose2(*scans[k].odometry))
         self.initial.insert(SCALE_KEY, np.array([1.0]))
-        self.initial.insert(OFFSET_KEY, np.array([0.0]))
+        self.initial.insert(OFFSET_KEY, np.zeros(3))
         scale_sigma = p.scale_sigma if p.estimate_calibration else 1e-6
         offset_sigma = math.radians(p.offset_sigma_deg) if p.estimate_calibration else 1e-6
+        deviation_sigma = math.radians(p.deviation_sigma_deg) if p.estimate_calibration and p.deviation else 1e-6
         self.graph.add(gtsam.PriorFactorVector(SCALE_KEY, np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
-        self.graph.add(gtsam.PriorFactorVector(OFFSET_KEY, np.array([0.0]), gtsam.noiseModel.Isotropic.Sigma(1, offset_sigma)))
+        self.graph.add(gtsam.PriorFactorVector(OFFSET_KEY, np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([offset_sigma, deviation_sigma, deviation_sigma]))))
         compass = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
                                                  gtsam.noiseModel.Isotropic.Sigma(1, math.radians(p.compass_sigma_deg)))
         for a, b in zip(nodes[:-1], nodes[1:]):
@@ -287,6 +294,8 @@ class NavGraphLocalizer:
 
 
 def calibration_of(values: gtsam.Values) -> dict[str, float]:
-    """The graph's DVL scale and compass offset (degrees, added to the compass heading)."""
-    return {"dvl_scale": float(values.atVector(SCALE_KEY)[0]),
-            "compass_offset_deg": -math.degrees(float(values.atVector(OFFSET_KEY)[0]))}
+    """The graph's DVL scale and compass deviation ``A + B sin(psi) + C cos(psi)`` (degrees, added to the
+    compass heading; ``psi`` the map-frame yaw)."""
+    a, b, c = (-math.degrees(float(v)) for v in values.atVector(OFFSET_KEY))
+    return {"dvl_scale": float(values.atVector(SCALE_KEY)[0]), "compass_offset_deg": a,
+            "compass_deviation_sin_deg": b, "compass_deviation_cos_deg": c}
