@@ -17,6 +17,7 @@ chosen on the first half. The sonar-to-navigation clock offset is estimated from
 Usage::
 
     .venv/bin/python benchmarks/marina.py [--data DIR] [--keyframes N] [--figures DIR | --no-figures] [--config JSON] [--json]
+    .venv/bin/python benchmarks/marina.py --conventions   # the cloud's frame conventions, measured
 
 ``--json`` prints, as its last line, ``{"dead_reckoning": {...}, "pipeline": {"start_aligned": {...},
 "rigid": {...}}, "revolutions", "seconds", ...}``.
@@ -28,16 +29,18 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.errors import CisternError  # noqa: E402
 from cistern_archive.navigation.accuracy import evaluate_track  # noqa: E402
+from cistern_archive.navigation.calibration import fit_start_calibration  # noqa: E402
+from cistern_archive.navigation.conventions import Convention, Revolution, consecutive_overlap  # noqa: E402
 from cistern_archive.navigation.pipeline import SurveyConfig, data_root_default, run_survey  # noqa: E402
 from cistern_archive.navigation.survey import load_marina_survey  # noqa: E402
+from cistern_archive.sonar.readers.pcd import read_points  # noqa: E402
 
 PUBLISHED = {"dead reckoning": (17.46, 11.47, 45.42), "MSISpIC": (3.99, 2.11, 8.49),
              "EKF SLAM, line features": (1.91, 1.32, 5.08), "pose-based scan-matching SLAM": (1.90, 1.09, 4.93)}
@@ -117,6 +120,36 @@ def _figures(survey, run, rows: dict[str, dict], out: Path) -> list[Path]:
     return [track_png, error_png]
 
 
+CONVENTION_VARIANTS = {
+    "measured (mirrored, +j·1.8° from 0°, mount 240°, clock +0.75 s, per-beam times)": {},
+    "not mirrored": {"mirrored": False},
+    "clockwise beam order": {"clockwise": True},
+    "first beam at 90°": {"first_beam_deg": 90.0},
+    "one time per revolution (no motion compensation)": {"per_beam_time": False},
+    "mount 216°": {"mount_deg": 216.0},
+    "mount 264°": {"mount_deg": 264.0},
+    "clock 0 s": {"clock_offset_s": 0.0},
+    "clock -0.75 s": {"clock_offset_s": -0.75},
+}
+
+
+def conventions_table(survey, frames: range) -> str:
+    """Consecutive-overlap score of the measured cloud conventions and of each alternative
+    (:mod:`cistern_archive.navigation.conventions`), on key frames ``frames`` and their successors."""
+    raw = survey.dead_reckoning()
+    fix_time, fixes = survey.dgps_xy()
+    calibration = fit_start_calibration(raw, fix_time, fixes)
+    track = survey.dead_reckoning(scale=calibration.scale, yaw_offset_rad=calibration.yaw_offset_rad)
+    wanted = sorted(set(frames) | {k + 1 for k in frames})
+    revolutions = {k: Revolution(read_points(survey.pcd_dir / f"pclKeyFrame{k}.pcd")[0], survey.keyframe_beam_times(k))
+                   for k in wanted}
+    lines = ["| convention | overlap |", "|---|---|"]
+    for name, change in CONVENTION_VARIANTS.items():
+        score = consecutive_overlap(revolutions, track, replace(Convention(), **change))
+        lines.append(f"| {name} | {score:.3f} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=data_root_default(), help="the marina data directory")
@@ -124,11 +157,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--figures", type=Path, default=ROOT / "benchmarks" / "figures")
     parser.add_argument("--no-figures", action="store_true")
     parser.add_argument("--config", default="{}", help="JSON overrides of SurveyConfig (tuning runs)")
+    parser.add_argument("--conventions", action="store_true",
+                        help="only measure the cloud's frame conventions against their alternatives")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         print(f"marina data not found at {args.data}", file=sys.stderr)
         return 2
+    if args.conventions:
+        print(conventions_table(load_marina_survey(args.data), range(20, 121, 4)))
+        return 0
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
         survey = load_marina_survey(args.data)

@@ -11,6 +11,7 @@ import pytest
 from cistern_archive.navigation.accuracy import evaluate_track
 from cistern_archive.navigation.calibration import fit_start_calibration
 from cistern_archive.navigation.conventions import Convention, Revolution, consecutive_overlap
+from cistern_archive.navigation.track import dead_reckon
 from cistern_archive.sonar.readers.pcd import read_points
 
 pytestmark = pytest.mark.realdata
@@ -42,6 +43,10 @@ def test_dead_reckoning_as_logged_is_near_the_published_error(survey):
     """DVL velocity turned by the DVL's own compass, no calibration: the published 17.46 m mean ± 15 %."""
     stats = _fixes(survey, survey.dead_reckoning(heading="dvl"))["start_aligned"]
     assert abs(stats.mean_m - 17.46) < 0.15 * 17.46
+    vt, v = survey.body_velocity()
+    ht, yaw = survey.heading("dvl")
+    starboard = dead_reckon(vt, v * [1.0, -1.0], ht, yaw)  # the other handedness of the DVL's y axis
+    assert _fixes(survey, starboard)["start_aligned"].mean_m > 100.0
 
 
 def test_start_calibration_fixes_the_mti_compass_offset(survey):

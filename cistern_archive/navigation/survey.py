@@ -7,8 +7,9 @@ revolution, ``keyFrameTimeStamps.csv``).
 
 Conventions, each with the evidence that fixed it (measured by ``benchmarks/marina.py``):
 
-* **DVL body frame**: x forward, y to port. Dead reckoning over the whole run with the DVL's own
-  compass and no calibration is 18.7 m mean error with y to port and 178 m with y to starboard.
+* **DVL body frame**: x forward, y to port. Dead reckoning with the DVL's own compass and no
+  calibration is 17.3 m mean error over the sonar's span (``benchmarks/marina.py``); with y to
+  starboard it is over 100 m (``tests/test_marina.py``).
 * **Heading**: the MTi yaw is a compass heading (clockwise from north, ±180°). The DVL compass reads
   about 26° less (README); the offset that best fits the first 300 s of DGPS is about −22°
   (:func:`cistern_archive.navigation.calibration.fit_start_calibration`), so the MTi yaw is used with

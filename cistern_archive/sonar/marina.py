@@ -12,25 +12,28 @@ Files (see ``../shared/data/README.md``):
   north), three rates, three accelerations.
 * ``keyFrameTimeStamps.csv``: key frame number, begin and end time of its sonar revolution.
 
-Frames of the derived point clouds (``pclKeyFrameN.pcd``), each fixed by the evidence quoted; the
-measurements are reproduced by ``benchmarks/marina.py --conventions`` (:mod:`cistern_archive.navigation.conventions`):
+Frames of the derived point clouds (``pclKeyFrameN.pcd``), each fixed by the evidence quoted. The
+measure (:mod:`cistern_archive.navigation.conventions`): place the echoes of consecutive revolutions
+k and k+1 in the map by dead reckoning (calibrated, each echo at the pose of its beam's time) and
+count the fraction of echoes of k+1 within 0.4 m of an echo of k; key frames 20–120 in steps of 4
+and their successors. ``benchmarks/marina.py --conventions`` prints the table (RESULTS.md, "Girona
+marina"); the measured conventions score 0.643, and
 
-* **Mirror** (:data:`PCD_MIRRORED`): the clouds' y axis points to starboard. Placing consecutive
-  clouds by dead reckoning, the fraction of echoes of cloud k+1 within 0.4 m of an echo of cloud k is
-  0.52 with y flipped and at most 0.30 without, for any mount angle (key frames 20–120).
+* **Mirror** (:data:`PCD_MIRRORED`): the clouds' y axis points to starboard; not mirrored: 0.088.
 * **Beam order** (:data:`PCD_FIRST_BEAM_DEG`): beam ``j`` of a revolution (row ``j`` of the
   revolution's 200 rows in ``_IS_timestamps.log``) lies at ``-j * 1.8°`` in the cloud's own angles,
-  i.e. at ``+j * 1.8°`` counter-clockwise once un-mirrored. With each echo moved to the pose of its
-  own beam time the overlap rises from 0.36 to 0.61; the opposite order or a start a quarter turn away
-  scores 0.45 or less.
+  i.e. at ``+j * 1.8°`` counter-clockwise once un-mirrored; clockwise order: 0.210, first beam at
+  90°: 0.259; one time for the whole revolution (no motion compensation): 0.360.
 * **Mount** (:data:`SONAR_MOUNT_DEG`): the sonar's zero bearing points 240° counter-clockwise from
-  the DVL's x axis (the overlap peaks at 236–240°, falling to 0.50 at ±24°).
+  the DVL's x axis (216°: 0.509, 264°: 0.555).
 * **Compass offset** (:data:`MTI_COMPASS_OFFSET_DEG`): body heading = MTi yaw − 22°, the offset that
-  best fits dead reckoning to the first 300 s of DGPS (the DVL's own compass reads a further ~4° lower).
+  best fits dead reckoning to the first 300 s of DGPS (−22.55°; the DVL's own compass reads about 4°
+  lower still). A constant compass offset turns the whole dead-reckoned track rigidly, so the overlap
+  above cannot see it; the DGPS can.
 * **Clock** (:data:`SONAR_CLOCK_OFFSET_S`): the sonar's log clock runs 0.75 s behind the navigation
-  logs: an echo logged at ``t`` was measured at navigation time ``t + 0.75 s``. The overlap of
-  motion-compensated consecutive clouds peaks there (0.643, against 0.586 at 0 s and 0.565 at +2 s,
-  first half of the run; :func:`cistern_archive.navigation.pipeline.estimate_clock_offset`).
+  logs: an echo logged at ``t`` was measured at navigation time ``t + 0.75 s`` (0 s: 0.568,
+  −0.75 s: 0.476; the survey pipeline estimates it again on the first half of each run,
+  :func:`cistern_archive.navigation.pipeline.estimate_clock_offset`).
 
 Every loader returns a :class:`NavTable` of named float64 columns sorted by time, and raises
 :class:`~cistern_archive.errors.ReaderError` naming the file and line of a malformed row.
