@@ -32,6 +32,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.errors import CisternError  # noqa: E402
@@ -79,6 +81,21 @@ def _table(rows: dict[str, dict]) -> str:
     for name, (mean, sd, mx) in PUBLISHED.items():
         lines.append(f"| published: {name} | {mean:.2f} / {sd:.2f} / {mx:.2f} | | |")
     return "\n".join(lines)
+
+
+def along_track_bias(run) -> tuple[int, float, float] | None:
+    """Converged consecutive matches: how many, and the median and mean of (match - dead reckoning)
+    along the dead-reckoned displacement (negative: the match is short of it); None without any."""
+    along = []
+    for m in run.matches:
+        if m.j != m.i + 1 or not m.converged:
+            continue
+        a, b = run.scans[m.i].odometry, run.scans[m.j].odometry
+        step = b[:2] - a[:2]
+        length = float(np.hypot(*step))
+        if length > 0.5:
+            along.append(float(np.dot([m.dx_m, m.dy_m], step) / length - length))
+    return (len(along), float(np.median(along)), float(np.mean(along))) if along else None
 
 
 def _figures(survey, run, rows: dict[str, dict], out: Path) -> list[Path]:
@@ -183,6 +200,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nrevolutions: {len(run.scans)} placed {int(run.poses.placed.sum())}; matches: consecutive "
           f"{sum(m.converged for m in consecutive)}/{len(consecutive)}, loop candidates "
           f"{sum(m.converged for m in loops)}/{len(loops)} converged")
+    bias = along_track_bias(run)
+    if bias is not None:
+        print(f"consecutive matches against dead reckoning, along track: {bias[0]} matches, median {bias[1]:+.2f} m, "
+              f"mean {bias[2]:+.2f} m")
     print(f"calibration (first {run.calibration.window_s:.0f} s of DGPS): {run.calibration.as_dict()}")
     print("clock offset (added to sonar times), consecutive-overlap score: "
           + ", ".join(f"{o:+.2f} s: {s:.3f}" for o, s in run.clock_scores) + f" -> {run.clock_offset_s:+.2f} s")
