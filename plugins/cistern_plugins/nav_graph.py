@@ -162,36 +162,45 @@ class _Graph:
     def __init__(self, scans: Sequence[RangeScan], nodes: list[int], matches: list[MatchResult], p: NavGraphParams):
         self.graph = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
-        self.match_factors: list[tuple[int, MatchResult]] = []
-        noise = p.odometry_noise()
-        first = scans[nodes[0]]
-        self.graph.add(gtsam.PriorFactorPose2(nodes[0], gtsam.Pose2(*first.odometry),
-                                              gtsam.noiseModel.Diagonal.Sigmas(np.array([0.01, 0.01, math.radians(p.compass_sigma_deg)]))))
         for k in nodes:
             self.initial.insert(k, gtsam.Pose2(*scans[k].odometry))
         self.initial.insert(SCALE_KEY, np.array([1.0]))
         self.initial.insert(OFFSET_KEY, np.zeros(3))
-        scale_sigma = p.scale_sigma if p.estimate_calibration else 1e-6
-        offset_sigma = math.radians(p.offset_sigma_deg) if p.estimate_calibration else 1e-6
-        deviation_sigma = math.radians(p.deviation_sigma_deg) if p.estimate_calibration and p.deviation else 1e-6
+        self._add_priors(scans[nodes[0]], nodes[0], p)
+        self._add_navigation(scans, nodes, p)
+        self._add_matches(scans, matches, p)
+
+    def _add_priors(self, first: RangeScan, key: int, p: NavGraphParams) -> None:
+        """The first scan at its odometry pose; the calibration variables at the surface calibration."""
+        calibrate = p.estimate_calibration
+        scale_sigma = p.scale_sigma if calibrate else 1e-6
+        offset_sigma = math.radians(p.offset_sigma_deg) if calibrate else 1e-6
+        deviation_sigma = math.radians(p.deviation_sigma_deg) if calibrate and p.deviation else 1e-6
+        self.graph.add(gtsam.PriorFactorPose2(key, gtsam.Pose2(*first.odometry), gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([0.01, 0.01, math.radians(p.compass_sigma_deg)]))))
         self.graph.add(gtsam.PriorFactorVector(SCALE_KEY, np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         self.graph.add(gtsam.PriorFactorVector(OFFSET_KEY, np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(
             np.array([offset_sigma, deviation_sigma, deviation_sigma]))))
-        compass = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
-                                                 gtsam.noiseModel.Isotropic.Sigma(1, math.radians(p.compass_sigma_deg)))
+
+    def _add_navigation(self, scans: Sequence[RangeScan], nodes: list[int], p: NavGraphParams) -> None:
+        """Scaled odometry between consecutive scans and a robust compass factor on each."""
+        noise = p.odometry_noise()
         for a, b in zip(nodes[:-1], nodes[1:]):
             delta, cov = odometry_covariance(scans[a], scans[b], noise)
             self.graph.add(gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(cov), [a, b, SCALE_KEY],
                                               _odometry_error(delta)))
+        compass = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+                                                 gtsam.noiseModel.Isotropic.Sigma(1, math.radians(p.compass_sigma_deg)))
         for k in nodes:
             self.graph.add(gtsam.CustomFactor(compass, [k, OFFSET_KEY], _compass_error(float(scans[k].odometry[2]))))
+
+    def _add_matches(self, scans: Sequence[RangeScan], matches: list[MatchResult], p: NavGraphParams) -> None:
+        """One Cauchy-robust ``BetweenFactorPose2`` per match."""
         cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(p.cauchy_k)
         for m in matches:
             measured, cov = match_measurement(scans[m.i], scans[m.j], m, p)
             model = gtsam.noiseModel.Robust.Create(cauchy, gtsam.noiseModel.Gaussian.Covariance(cov))
-            self.match_factors.append((int(self.graph.size()), m))
             self.graph.add(gtsam.BetweenFactorPose2(m.i, m.j, measured, model))
-        self.covariances = {id(m): match_measurement(scans[m.i], scans[m.j], m, p)[1] for m in matches}
 
     def solve(self, p: NavGraphParams) -> gtsam.Values:
         params = gtsam.LevenbergMarquardtParams()
