@@ -267,3 +267,18 @@ def test_guided_correlative_finds_the_displacement_around_a_guess():
 def test_se2_between_is_the_relative_pose():
     a, b = np.array([1.0, 2.0, math.pi / 2]), np.array([1.0, 5.0, math.pi])
     np.testing.assert_allclose(se2_between(a, b), [3.0, 0.0, math.pi / 2], atol=1e-12)
+
+
+def test_survey_loader_names_what_is_missing(tmp_path):
+    from cistern_archive.errors import ReaderError
+    from cistern_archive.navigation.survey import load_marina_survey
+
+    with pytest.raises(ReaderError, match=r"no file matching '\*_DVL.log'"):
+        load_marina_survey(tmp_path)
+
+
+def test_compensation_refuses_a_scan_without_beam_times():
+    from cistern_archive.navigation.motion import compensated_range_scan
+
+    with pytest.raises(ValueError, match="no per-beam times"):
+        compensated_range_scan(_scan(np.zeros((3, 4), dtype=np.uint8)), _straight())

@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -41,12 +42,12 @@ class SurveyConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    heading: str = "mti"
+    heading: Literal["mti", "dvl"] = "mti"
     calibration_window_s: float = Field(300.0, gt=0)
     clock_offsets_s: list[float] = Field(default_factory=lambda: [-1.0, -0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0])
     clock_stride: int = Field(2, ge=1)
     min_range_m: float = Field(1.0, ge=0)
-    echo_position: str = "leading"
+    echo_position: Literal["leading", "centre", "bins"] = "leading"
     submap_neighbours: int = Field(2, ge=0)
     matcher: str = "guided-correlative"
     matcher_params: dict = Field(default_factory=lambda: {"sigma_m": 0.3, "coarse_m": 0.2, "fine_m": 0.1,

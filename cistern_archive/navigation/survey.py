@@ -69,10 +69,10 @@ class MarinaSurvey:
     def keyframe_beam_times(self, frame: int) -> np.ndarray:
         """Log times of the 200 beams of key frame ``frame``, in acquisition order."""
         begin, _ = self.keyframes[frame]
-        start = int(np.searchsorted(self.beam_time, begin - 1e-3))
-        times = self.beam_time[start:start + BEAMS_PER_REVOLUTION]
-        if len(times) < BEAMS_PER_REVOLUTION:
-            raise ReaderError(str(self.root), f"key frame {frame}: only {len(times)} beam times after {begin}")
+        times = marina.revolution_beam_times(self.beam_time, begin, BEAMS_PER_REVOLUTION)
+        if times is None:
+            raise ReaderError(str(self.root), f"key frame {frame}: no run of {BEAMS_PER_REVOLUTION} beam times "
+                              f"starting at {begin:.3f} s in the IS timestamps log")
         return times
 
     def body_velocity(self) -> tuple[np.ndarray, np.ndarray]:

@@ -214,6 +214,15 @@ def load_beam_times(path: str | os.PathLike) -> NavTable:
     return load_table(path, ["time", "sensor_ms"])
 
 
+def revolution_beam_times(beam_times: np.ndarray, begin: float, beams: int = 200) -> np.ndarray | None:
+    """The ``beams`` consecutive beam times starting at a revolution's ``begin`` time (the first beam
+    at or after it, within 50 ms), or None when the log has no such run."""
+    start = int(np.searchsorted(beam_times, begin - 1e-3))
+    if start + beams > len(beam_times) or abs(beam_times[start] - begin) > 0.05:
+        return None
+    return np.array(beam_times[start:start + beams], dtype=np.float64)
+
+
 def mean_heading_deg(table: NavTable, start: float, end: float, column: str = "yaw_deg") -> float | None:
     """Circular mean of a compass-heading column over [start, end] (nearest sample when none inside)."""
     if len(table) == 0:

@@ -152,11 +152,10 @@ def _beam_times(path: Path, begin: float, warnings: list[str]) -> np.ndarray | N
     except ReaderError as exc:
         warnings.append(f"{exc}; no beam times")
         return None
-    start = int(np.searchsorted(times, begin - 1e-3))
-    if start + BEAMS > len(times) or abs(times[start] - begin) > 0.05:
+    beam_times = marina.revolution_beam_times(times, begin, BEAMS)
+    if beam_times is None:
         warnings.append(f"{path}: no run of {BEAMS} beams at {begin:.3f} s in {logs[0].name}; no beam times")
-        return None
-    return times[start:start + BEAMS].copy()
+    return beam_times
 
 
 def _navigation(path: Path, warnings: list[str]) -> tuple[float, float, dict, np.ndarray | None]:
