@@ -125,6 +125,13 @@ def test_marina_pcd_with_navigation():
     assert int(scan.intensities.sum()) == 3771
     assert scan.timestamp == pytest.approx(1093455289.85463)
     assert scan.settings["compass_heading_deg"] == pytest.approx(233.7, abs=0.1)
+    # body heading = MTi compass - 22°; 200 beam times of 68 ms from the IS log, the first at the key frame's begin
+    assert scan.yaw_rad == pytest.approx(math.radians(90.0 - (233.7 - 22.0)), abs=2e-3)
+    assert scan.beam_times_s.shape == (200,) and scan.beam_times_s[0] == pytest.approx(scan.timestamp, abs=1e-3)
+    assert np.median(np.diff(scan.beam_times_s)) == pytest.approx(0.068, abs=2e-3)
+    # row j is the j-th beam, at -j * 1.8° in the (mirrored) cloud, +j * 1.8° + 240° in the body frame
+    assert math.degrees(scan.bearings_rad[0]) == pytest.approx(240.0 - 360.0)
+    assert math.degrees(scan.bearings_rad[1] - scan.bearings_rad[0]) == pytest.approx(1.8)
     frames = marina.load_keyframe_times(path.parent / "keyFrameTimeStamps.csv")
     assert len(frames) == 230
     dgps = marina.load_dgps(_data("marina", "_040825_1735_DGPS.log"))
@@ -247,7 +254,8 @@ def test_pcd_nan_inf_and_garbage_rows(tmp_path):
     result = read_file(path)
     (scan,) = result.scans
     assert int(scan.intensities.sum()) == 2
-    assert scan.intensities[0, 10] == 1 and scan.intensities[150, 30] == 1  # 0° and -90° (beam 150 = 270°)
+    # the cloud is mirrored: its -90° is the sonar's +90°, the 50th beam of a revolution
+    assert scan.intensities[0, 10] == 1 and scan.intensities[50, 30] == 1
     text = "\n".join(result.warnings)
     assert "line 11: NaN" in text and "line 12: NaN" in text and "line 13" in text and "beyond 50.0 m" in text
 

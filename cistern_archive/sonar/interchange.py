@@ -8,7 +8,11 @@ name                dtype / shape             meaning
 ``bearings_rad``    float64 (A,)              beam bearings, sonar frame, CCW from forward
 ``intensities``     device dtype (A, B)       echo intensities, 0 .. ``full_scale``
 ``metadata``        uint8 (N,)                UTF-8 JSON object (see below)
+``beam_times_s``    float64 (A,)              schema version 2 only: time of every beam (Unix s)
 ==================  ========================  ==============================================
+
+Schema version 2 adds ``beam_times_s`` for scans taken from a moving vehicle; a scan without beam times
+is written as version 1, byte for byte as before, and both versions are read.
 
 ``metadata`` keys: ``schema`` (``"cistern-archive/scan"``), ``schema_version`` (1), ``full_scale``,
 ``bin_size_m``, ``start_range_m``, ``yaw_rad``, ``depth_m``, ``timestamp`` (Unix seconds or null),
@@ -39,7 +43,14 @@ from cistern_archive.errors import ReaderError
 from cistern_archive.sonar.scan import Scan
 
 SCHEMA = "cistern-archive/scan"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""The newest version written; :data:`READABLE_VERSIONS` are read."""
+READABLE_VERSIONS = (1, 2)
+
+
+def scan_schema_version(scan: Scan) -> int:
+    """2 when the scan has per-beam times, else 1 (the oldest version that holds the scan)."""
+    return 2 if scan.beam_times_s is not None else 1
 MAX_ARRAY_BYTES = 256 << 20
 """Largest array a scan may hold (a 360° Micron scan is well under 1 MiB)."""
 MAX_METADATA_BYTES = 1 << 20
@@ -50,7 +61,7 @@ MEMBERS = ("bearings_rad", "intensities", "metadata")
 def scan_metadata(scan: Scan) -> dict:
     return {
         "schema": SCHEMA,
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": scan_schema_version(scan),
         "full_scale": float(scan.full_scale),
         "bin_size_m": float(scan.bin_size_m),
         "start_range_m": float(scan.start_range_m),
@@ -69,17 +80,17 @@ def write_scan(scan: Scan, path: str | os.PathLike) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = json.dumps(scan_metadata(scan), sort_keys=True, allow_nan=False).encode("utf-8")
+    arrays = {
+        "bearings_rad": np.asarray(scan.bearings_rad, dtype=np.float64),
+        "intensities": np.asarray(scan.intensities),
+        "metadata": np.frombuffer(meta, dtype=np.uint8),
+    }
+    if scan.beam_times_s is not None:
+        arrays["beam_times_s"] = np.asarray(scan.beam_times_s, dtype=np.float64)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as handle:
-            _write_npz_deterministic(
-                handle,
-                {
-                    "bearings_rad": np.asarray(scan.bearings_rad, dtype=np.float64),
-                    "intensities": np.asarray(scan.intensities),
-                    "metadata": np.frombuffer(meta, dtype=np.uint8),
-                },
-            )
+            _write_npz_deterministic(handle, arrays)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
@@ -143,6 +154,7 @@ def check_npz(path: str | os.PathLike) -> None:
             if missing:
                 raise ReaderError(str(path), f"not a cistern-archive scan: missing arrays {missing}")
             shapes = {m: _npy_header(archive, m, path) for m in MEMBERS}
+            times = _npy_header(archive, "beam_times_s", path) if "beam_times_s.npy" in names else None
     except (OSError, zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as exc:
         raise ReaderError(str(path), f"unreadable .npz: {type(exc).__name__}: {exc}") from None
     (bearings, _), (intensities, dtype), (metadata, meta_dtype) = (shapes[m] for m in MEMBERS)
@@ -153,6 +165,9 @@ def check_npz(path: str | os.PathLike) -> None:
         raise ReaderError(str(path), f"the scan has no data: {bearings[0]} beams of {intensities[1]} bins")
     if dtype.kind not in "uif":
         raise ReaderError(str(path), f"intensities have dtype {dtype}; expected integers or floats")
+    if times is not None and (times[0] != bearings or times[1].kind != "f"):
+        raise ReaderError(str(path), f"beam_times_s {times[0]} of {times[1]} must be float times, one per beam "
+                                     f"{bearings}")
     if len(metadata) != 1 or meta_dtype != np.uint8 or metadata[0] > MAX_METADATA_BYTES:
         raise ReaderError(str(path), f"metadata must be at most {MAX_METADATA_BYTES} uint8 bytes, got shape "
                                      f"{metadata} of {meta_dtype}")
@@ -189,6 +204,7 @@ def read_scan(path: str | os.PathLike) -> Scan:
             bearings = data["bearings_rad"]
             intensities = data["intensities"]
             meta_bytes = data["metadata"].tobytes()
+            beam_times = data["beam_times_s"] if "beam_times_s" in data.files else None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise ReaderError(str(path), f"unreadable .npz: {exc}") from None
     try:
@@ -199,8 +215,13 @@ def read_scan(path: str | os.PathLike) -> Scan:
         raise ReaderError(str(path), f"metadata is a JSON {type(meta).__name__}, expected an object")
     if meta.get("schema") != SCHEMA:
         raise ReaderError(str(path), f"metadata schema is {meta.get('schema')!r}, expected {SCHEMA!r}")
-    if meta.get("schema_version") != SCHEMA_VERSION:
-        raise ReaderError(str(path), f"unsupported schema_version {meta.get('schema_version')!r}")
+    version = meta.get("schema_version")
+    if version not in READABLE_VERSIONS:
+        raise ReaderError(str(path), f"unsupported schema_version {version!r}; this version reads "
+                          f"{', '.join(map(str, READABLE_VERSIONS))}")
+    if (beam_times is not None) != (version == 2):
+        raise ReaderError(str(path), "schema_version 2 needs the array beam_times_s and version 1 has none; "
+                          f"this file is version {version} {'with' if beam_times is not None else 'without'} it")
     if not np.all(np.isfinite(bearings)):
         raise ReaderError(str(path), "bearings_rad contains NaN or infinite values")
     _check_metadata_numbers(meta, path)
@@ -219,6 +240,7 @@ def read_scan(path: str | os.PathLike) -> Scan:
             beam_width_rad=meta["beam_width_rad"],
             station=meta["station"],
             settings=meta.get("settings", {}),
+            beam_times_s=beam_times,
         )
     except KeyError as exc:
         raise ReaderError(str(path), f"metadata lacks {exc.args[0]!r}") from None

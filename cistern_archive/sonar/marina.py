@@ -12,6 +12,29 @@ Files (see ``../shared/data/README.md``):
   north), three rates, three accelerations.
 * ``keyFrameTimeStamps.csv``: key frame number, begin and end time of its sonar revolution.
 
+Frames of the derived point clouds (``pclKeyFrameN.pcd``), each fixed by the evidence quoted. The
+measure (:mod:`cistern_archive.navigation.conventions`): place the echoes of consecutive revolutions
+k and k+1 in the map by dead reckoning (calibrated, each echo at the pose of its beam's time) and
+count the fraction of echoes of k+1 within 0.4 m of an echo of k; key frames 20–120 in steps of 4
+and their successors. ``benchmarks/marina.py --conventions`` prints the table (RESULTS.md, "Girona
+marina"); the measured conventions score 0.643, and
+
+* **Mirror** (:data:`PCD_MIRRORED`): the clouds' y axis points to starboard; not mirrored: 0.088.
+* **Beam order** (:data:`PCD_FIRST_BEAM_DEG`): beam ``j`` of a revolution (row ``j`` of the
+  revolution's 200 rows in ``_IS_timestamps.log``) lies at ``-j * 1.8°`` in the cloud's own angles,
+  i.e. at ``+j * 1.8°`` counter-clockwise once un-mirrored; clockwise order: 0.210, first beam at
+  90°: 0.259; one time for the whole revolution (no motion compensation): 0.360.
+* **Mount** (:data:`SONAR_MOUNT_DEG`): the sonar's zero bearing points 240° counter-clockwise from
+  the DVL's x axis (216°: 0.509, 264°: 0.555).
+* **Compass offset** (:data:`MTI_COMPASS_OFFSET_DEG`): body heading = MTi yaw − 22°, the offset that
+  best fits dead reckoning to the first 300 s of DGPS (−22.55°; the DVL's own compass reads about 4°
+  lower still). A constant compass offset turns the whole dead-reckoned track rigidly, so the overlap
+  above cannot see it; the DGPS can.
+* **Clock** (:data:`SONAR_CLOCK_OFFSET_S`): the sonar's log clock runs 0.75 s behind the navigation
+  logs: an echo logged at ``t`` was measured at navigation time ``t + 0.75 s`` (0 s: 0.568,
+  −0.75 s: 0.476; the survey pipeline estimates it again on the first half of each run,
+  :func:`cistern_archive.navigation.pipeline.estimate_clock_offset`).
+
 Every loader returns a :class:`NavTable` of named float64 columns sorted by time, and raises
 :class:`~cistern_archive.errors.ReaderError` naming the file and line of a malformed row.
 """
@@ -26,6 +49,13 @@ from pathlib import Path
 import numpy as np
 
 from cistern_archive.errors import ReaderError
+
+
+PCD_MIRRORED = True
+PCD_FIRST_BEAM_DEG = 0.0
+SONAR_MOUNT_DEG = 240.0
+MTI_COMPASS_OFFSET_DEG = -22.0
+SONAR_CLOCK_OFFSET_S = 0.75
 
 
 @dataclass(frozen=True)
@@ -147,14 +177,17 @@ def load_dgps_local(path: str | os.PathLike) -> NavTable:
 def load_dvl(path: str | os.PathLike) -> NavTable:
     """DVL data: ``dvlData.csv`` (m/s, radians) or the raw ``_*_DVL.log`` (converted to m/s, radians).
 
-    Columns: time, bottom_vx, bottom_vy, bottom_vz (m/s), range1..3 (m), heading, pitch, roll (rad).
+    Columns: time, bottom_vx, bottom_vy, bottom_vz (m/s), range1..3 (m), heading, pitch, roll (rad), and
+    ``bottom_status`` (1 for a valid bottom track; ``dvlData.csv`` holds only valid rows, the raw log
+    also the 84 pings with status 0, whose velocities are garbage, up to 4.6 m/s).
     """
     path = Path(path)
     names = ["time", "bottom_vx", "bottom_vy", "bottom_vz", "range1", "range2", "range3", "heading_rad",
              "pitch_rad", "roll_rad"]
     if path.suffix.lower() == ".csv":
-        return load_table(path, names, sep=",")
-    raw = load_table(path, names, columns=[0, 11, 12, 13, 15, 16, 17, 22, 23, 24])
+        table = load_table(path, names, sep=",")
+        return NavTable({**table.columns, "bottom_status": np.ones(len(table))})
+    raw = load_table(path, names + ["bottom_status"], columns=[0, 11, 12, 13, 15, 16, 17, 22, 23, 24, 14])
     cols = dict(raw.columns)
     for k in ("bottom_vx", "bottom_vy", "bottom_vz"):
         cols[k] = cols[k] / 100.0
@@ -173,6 +206,21 @@ def load_keyframe_times(path: str | os.PathLike) -> dict[int, tuple[float, float
     """``keyFrameTimeStamps.csv`` as ``{key frame: (begin, end)}``."""
     table = load_table(path, ["time", "begin", "end"], sep=",")
     return {int(k): (float(b), float(e)) for k, b, e in zip(table["time"], table["begin"], table["end"])}
+
+
+def load_beam_times(path: str | os.PathLike) -> NavTable:
+    """``_*_IS_timestamps.log``: one row per sonar beam, ``time`` (log clock, Unix s) and ``sensor_ms``
+    (the sonar's own clock, milliseconds of the UTC day)."""
+    return load_table(path, ["time", "sensor_ms"])
+
+
+def revolution_beam_times(beam_times: np.ndarray, begin: float, beams: int = 200) -> np.ndarray | None:
+    """The ``beams`` consecutive beam times starting at a revolution's ``begin`` time (the first beam
+    at or after it, within 50 ms), or None when the log has no such run."""
+    start = int(np.searchsorted(beam_times, begin - 1e-3))
+    if start + beams > len(beam_times) or abs(beam_times[start] - begin) > 0.05:
+        return None
+    return np.array(beam_times[start:start + beams], dtype=np.float64)
 
 
 def mean_heading_deg(table: NavTable, start: float, end: float, column: str = "yaw_deg") -> float | None:

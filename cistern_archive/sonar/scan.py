@@ -70,6 +70,9 @@ class Scan:
         Station label (where the vehicle landed for this sweep).
     settings : dict
         Device settings as recorded (JSON-serialisable values only).
+    beam_times_s : ndarray, shape (A,), or None
+        Time of every beam (Unix s, UTC), for a sonar on a moving vehicle; ``None`` for a stationary
+        sweep, whose beams all share :attr:`timestamp`.
     """
 
     bearings_rad: np.ndarray
@@ -84,10 +87,19 @@ class Scan:
     beam_width_rad: float = math.radians(3.0)
     station: str = ""
     settings: dict[str, Any] = field(default_factory=dict)
+    beam_times_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         bearings = np.asarray(self.bearings_rad, dtype=np.float64)
         intensities = np.asarray(self.intensities)
+        if self.beam_times_s is not None:
+            times = np.asarray(self.beam_times_s, dtype=np.float64)
+            if times.shape != bearings.shape:
+                raise ValueError(f"beam_times_s must have one time per beam {bearings.shape}, got {times.shape}")
+            if not np.all(np.isfinite(times)):
+                raise ValueError("beam_times_s contains NaN or infinite values")
+            times.setflags(write=False)
+            object.__setattr__(self, "beam_times_s", times)
         if bearings.ndim != 1:
             raise ValueError(f"bearings_rad must be 1-D, got shape {bearings.shape}")
         if intensities.ndim != 2 or intensities.shape[0] != bearings.shape[0]:
@@ -151,6 +163,12 @@ class RangeScan:
         Radial and angular resolution, used by inverse sensor models.
     station : str
         Station label.
+    time_s : float
+        Reference time (Unix s) of a scan from a moving vehicle, its echoes motion compensated to it;
+        ``nan`` for a stationary scan.
+    odometry : ndarray, shape (3,), or None
+        Dead-reckoned ``(x, y, yaw)`` of the vehicle at ``time_s`` (map frame), for localizers that
+        use navigation (``nav-graph``); ``None`` without navigation.
     """
 
     bearings_rad: np.ndarray
@@ -161,6 +179,8 @@ class RangeScan:
     bin_size_m: float
     beam_width_rad: float
     station: str = ""
+    time_s: float = float("nan")
+    odometry: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         bearings = np.asarray(self.bearings_rad, dtype=np.float64)
@@ -171,6 +191,12 @@ class RangeScan:
         ranges.setflags(write=False)
         object.__setattr__(self, "bearings_rad", bearings)
         object.__setattr__(self, "ranges_m", ranges)
+        if self.odometry is not None:
+            odometry = np.asarray(self.odometry, dtype=np.float64)
+            if odometry.shape != (3,) or not np.all(np.isfinite(odometry)):
+                raise ValueError(f"odometry must be three finite numbers (x, y, yaw), got {self.odometry!r}")
+            odometry.setflags(write=False)
+            object.__setattr__(self, "odometry", odometry)
 
     @property
     def valid(self) -> np.ndarray:

@@ -1,0 +1,186 @@
+"""The marina survey end to end: dead reckoning, calibration, clock, compensated scans, matches, graph.
+
+Steps (each a function below, driven by :func:`run_survey`):
+
+1. dead reckoning from the DVL and the MTi (:mod:`.track`), calibrated on DGPS of the first
+   ``calibration_window_s`` only (:mod:`.calibration`);
+2. the sonar-to-navigation clock offset, the candidate with the best consecutive-scan overlap
+   (:mod:`.conventions`), estimated on the first half of the key frames only;
+3. every key frame read by the ``marina-pcd`` reader and motion compensated to its mid time
+   (:mod:`.motion`);
+4. matching through the plugin registry, as the runner does (:func:`cistern_archive.pipeline.runner.match_rounds`):
+   the localizer's consecutive pairs with the dead-reckoned guess, then its loop-closure candidates;
+5. the ``nav-graph`` localizer, and the corrected continuous track (:mod:`.correction`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from cistern_archive.navigation.calibration import Calibration, fit_start_calibration
+from cistern_archive.navigation.conventions import Convention, Revolution, best_of
+from cistern_archive.navigation.correction import corrected_positions
+from cistern_archive.navigation.motion import compensated_range_scan
+from cistern_archive.navigation.survey import MarinaSurvey
+from cistern_archive.navigation.track import Track
+from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses
+from cistern_archive.pipeline.registry import default_registry
+from cistern_archive.pipeline.runner import match_pair, match_rounds
+from cistern_archive.sonar.readers import read_file
+from cistern_archive.sonar.readers.pcd import read_points
+from cistern_archive.sonar.scan import RangeScan
+
+
+class SurveyConfig(BaseModel):
+    """Settings of :func:`run_survey` (lengths in metres, times in seconds)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    heading: Literal["mti", "dvl"] = "mti"
+    calibration_window_s: float = Field(300.0, gt=0)
+    clock_offsets_s: list[float] = Field(default_factory=lambda: [-1.0, -0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0])
+    clock_stride: int = Field(2, ge=1)
+    min_range_m: float = Field(1.0, ge=0)
+    echo_position: Literal["leading", "centre", "bins"] = "leading"
+    submap_neighbours: int = Field(2, ge=0)
+    matcher: str = "guided-correlative"
+    matcher_params: dict = Field(default_factory=lambda: {"sigma_m": 0.3, "coarse_m": 0.2, "fine_m": 0.1,
+                                                          "ambiguity_distance_m": 2.0, "yaw_window_deg": 2.0})
+    consecutive_radius_m: float = Field(1.5, gt=0)
+    localizer: str = "nav-graph"
+    localizer_params: dict = Field(default_factory=lambda: {"consecutive": False, "loop_min_gap": 5, "loop_per_scan": 2,
+                                                            "compass_sigma_deg": 8.0})
+    max_keyframes: int | None = Field(None, ge=2)
+    seed: int = 20040825
+
+    @model_validator(mode="after")
+    def _disjoint_submaps(self) -> "SurveyConfig":
+        """Scans matched as loops must not share revolutions: a submap matched with itself is no evidence."""
+        gap = self.localizer_params.get("loop_min_gap", 10)
+        if self.localizer == "nav-graph" and gap <= 2 * self.submap_neighbours:
+            raise ValueError(f"loop_min_gap {gap} must exceed twice submap_neighbours ({self.submap_neighbours}): "
+                             "loop candidates would share revolutions")
+        if self.localizer_params.get("consecutive", True) and self.localizer == "nav-graph" and self.submap_neighbours:
+            raise ValueError("consecutive matches of submaps share revolutions; set localizer_params.consecutive "
+                             "to false or submap_neighbours to 0")
+        return self
+
+
+@dataclass
+class SurveyRun:
+    """Everything :func:`run_survey` measured."""
+
+    raw_track: Track
+    calibration: Calibration
+    track: Track
+    clock_offset_s: float
+    clock_scores: list[tuple[float, float]]
+    frames: list[int]
+    scans: list[RangeScan]
+    matches: list[MatchResult]
+    poses: Poses
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def positions_at(self, times: np.ndarray) -> np.ndarray:
+        """The corrected track at ``times`` (navigation clock)."""
+        placed = np.flatnonzero(self.poses.placed)
+        node_times = np.array([self.scans[k].time_s for k in placed])
+        node_poses = np.column_stack([self.poses.xy_m[placed], self.poses.yaw_rad[placed]])
+        return corrected_positions(self.track, node_times, node_poses, times)
+
+    @property
+    def span_s(self) -> tuple[float, float]:
+        """Navigation-clock times of the first and last placed scan."""
+        times = [s.time_s for s, ok in zip(self.scans, self.poses.placed) if ok]
+        return min(times), max(times)
+
+
+def usable_frames(survey: MarinaSurvey, track: Track, offset_s: float) -> list[int]:
+    """Key frames whose whole revolution lies inside the dead-reckoned track."""
+    frames = []
+    for k in sorted(survey.keyframes):
+        begin, end = survey.keyframes[k]
+        if begin + offset_s >= track.time[0] and end + offset_s <= track.time[-1]:
+            frames.append(k)
+    return frames
+
+
+def estimate_clock_offset(survey: MarinaSurvey, track: Track, frames: list[int], config: SurveyConfig
+                          ) -> tuple[float, list[tuple[float, float]]]:
+    """The offset (added to sonar times) with the best consecutive overlap on the first half of ``frames``."""
+    first_half = frames[: len(frames) // 2]
+    chosen = set(first_half[::config.clock_stride])
+    chosen |= {k + 1 for k in chosen if k + 1 in first_half}
+    revolutions = {k: Revolution(read_points(survey.pcd_dir / f"pclKeyFrame{k}.pcd")[0], survey.keyframe_beam_times(k))
+                   for k in sorted(chosen)}
+    best, scored = best_of(revolutions, track, [Convention(clock_offset_s=o) for o in config.clock_offsets_s])
+    return best.clock_offset_s, [(c.clock_offset_s, s) for c, s in scored]
+
+
+def compensated_scans(survey: MarinaSurvey, track: Track, frames: list[int], offset_s: float,
+                      config: SurveyConfig) -> list[RangeScan]:
+    """Every key frame read and motion compensated (:func:`compensated_range_scan`), with the echoes of
+    its ``submap_neighbours`` revolutions on either side."""
+    raw = [read_file(survey.pcd_dir / f"pclKeyFrame{k}.pcd", "marina-pcd").scans[0].replace(station=f"kf{k}")
+           for k in frames]
+    w = config.submap_neighbours
+    scans = []
+    for q, scan in enumerate(raw):
+        companions = raw[max(0, q - w):q] + raw[q + 1:q + 1 + w]
+        range_scan, _ = compensated_range_scan(scan, track, clock_offset_s=offset_s, min_range_m=config.min_range_m,
+                                               echo_position=config.echo_position, companions=companions)
+        scans.append(range_scan)
+    return scans
+
+
+def odometry_guess(a: RangeScan, b: RangeScan, radius_m: float) -> MatchGuess:
+    """The dead-reckoned ``p_b - p_a`` (map frame), no yaw correction, a ``±radius_m`` window."""
+    return MatchGuess(float(b.odometry[0] - a.odometry[0]), float(b.odometry[1] - a.odometry[1]), 0.0, radius_m)
+
+
+def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig()) -> SurveyRun:
+    """Run every step of the module docstring."""
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    raw = survey.dead_reckoning(heading=config.heading)
+    fix_time, fixes = survey.dgps_xy()
+    calibration = fit_start_calibration(raw, fix_time, fixes, window_s=config.calibration_window_s)
+    track = survey.dead_reckoning(heading=config.heading, scale=calibration.scale,
+                                  yaw_offset_rad=calibration.yaw_offset_rad)
+    frames = usable_frames(survey, track, 0.0)
+    if config.max_keyframes is not None:
+        frames = frames[: config.max_keyframes]
+    timings["dead_reckoning"] = time.perf_counter() - start
+    offset, clock_scores = estimate_clock_offset(survey, track, frames, config)
+    frames = [k for k in frames if k in set(usable_frames(survey, track, offset))]
+    timings["clock"] = time.perf_counter() - start - sum(timings.values())
+    scans = compensated_scans(survey, track, frames, offset, config)
+    timings["scans"] = time.perf_counter() - start - sum(timings.values())
+    registry = default_registry()
+    matcher = registry.load("matcher", config.matcher).instance
+    localizer = registry.load("localizer", config.localizer).instance
+    matcher_params = matcher.Params.model_validate(config.matcher_params)
+    localizer_params = localizer.Params.model_validate(config.localizer_params)
+
+    def run_pair(i: int, j: int, guess: MatchGuess | None) -> MatchResult:
+        guess = guess or odometry_guess(scans[i], scans[j], config.consecutive_radius_m)
+        return match_pair(matcher, matcher_params, scans, config.seed, i, j, guess)
+
+    matches = match_rounds(scans, localizer, localizer_params, run_pair)
+    timings["matching"] = time.perf_counter() - start - sum(timings.values())
+    poses = localizer.localize(scans, matches, localizer_params)
+    timings["localizer"] = time.perf_counter() - start - sum(timings.values())
+    return SurveyRun(raw_track=raw, calibration=calibration, track=track, clock_offset_s=offset,
+                     clock_scores=clock_scores, frames=frames, scans=scans, matches=matches, poses=poses,
+                     timings_s=timings)
+
+
+def data_root_default() -> Path:
+    """``../shared/data/marina`` beside the repository."""
+    return Path(__file__).resolve().parents[3] / "shared" / "data" / "marina"
