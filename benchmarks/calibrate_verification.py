@@ -1,7 +1,7 @@
 """Fit the calibrated match verification (``plugins/cistern_plugins/verification.json``).
 
 Draws simulated pairs on a tuning seed — pairs of random rooms and galleries
-(:mod:`cistern_archive.testing.pairs`) and every pair up to three stations apart in random
+(:mod:`cistern_archive.testing.pairs`, with both of its sonar models) and every pair up to three stations apart in random
 multi-chamber cisterns (:mod:`cistern_archive.testing.chambers`), all through the physical sonar
 simulator and the pipeline's segmentation — runs the point matchers with every verification limit off
 (so each reports the pose its search found), labels each pose against the truth — correct: within
@@ -39,11 +39,16 @@ OPEN_LIMITS = {"calibrated": False, "min_inliers": 3, "min_inlier_ratio": 0.0, "
 
 
 def draw_pairs(n: int, seed: int, segmentation: str | None) -> list[SimulatedPair]:
-    """``n`` overlapping pairs (overlap 0.2–0.95, offsets up to 3 m) and ``n // 2`` pairs of two sites."""
+    """``n`` overlapping pairs (overlap 0.2–0.95, offsets up to 3 m) and ``n // 2`` pairs of two sites,
+    for each sonar model: the physical simulator (with ``segmentation``) and ideal rays with range
+    noise, multipath outliers and drop-outs (scans from other sonars, already segmented)."""
     rng = np.random.default_rng(seed)
-    spec = PairSpec(sonar="simulator", segmentation=segmentation, max_offset_m=3.0)
-    pairs = [simulated_pair(rng, spec=spec, overlap_range=(0.2, 0.95)) for _ in range(n)]
-    return pairs + [simulated_pair(rng, spec=spec, overlapping=False) for _ in range(n // 2)]
+    pairs: list[SimulatedPair] = []
+    for sonar in ("simulator", "rays"):
+        spec = PairSpec(sonar=sonar, segmentation=segmentation, max_offset_m=3.0)
+        pairs += [simulated_pair(rng, spec=spec, overlap_range=(0.2, 0.95)) for _ in range(n)]
+        pairs += [simulated_pair(rng, spec=spec, overlapping=False) for _ in range(n // 2)]
+    return pairs
 
 
 def site_pairs(n_sites: int, seed: int, max_gap: int = 3) -> list[SimulatedPair]:

@@ -81,11 +81,15 @@ from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  
 from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
 
 
-def with_localizer(loaded, localizer: str | None):
-    """The record with another localizer plugin (default parameters), or unchanged."""
-    if localizer is None:
+def with_localizer(loaded, localizer: str | tuple[str | None, dict] | None):
+    """The record with another localizer plugin and/or localizer parameters (``(name, params)``; a
+    ``None`` name keeps the record's plugin), or unchanged."""
+    name, params = (localizer, {}) if not isinstance(localizer, tuple) else localizer
+    if name is None and not params:
         return loaded
-    pipeline = loaded.record.pipeline.model_copy(update={"localizer": StageChoice(plugin=localizer)})
+    current = loaded.record.pipeline.localizer
+    choice = StageChoice(plugin=name or current.plugin, params=params)
+    pipeline = loaded.record.pipeline.model_copy(update={"localizer": choice})
     return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))
 
 
@@ -142,7 +146,7 @@ def far_pair_scores(loaded, build, truth: SiteTruth, limit: int) -> list[dict]:
     return rows
 
 
-def score_site(path: Path, catalog: Path, localizer: str | None = None, far_limit: int = 0) -> dict | None:
+def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) -> dict | None:
     """Build one site with the runner and score it against its truth (module docstring)."""
     loaded = with_localizer(load_record(path, catalog), localizer)
     record = loaded.record
@@ -306,7 +310,7 @@ def demo_main(args) -> int:
     for path in record_paths(args.catalog):
         if args.site and path.stem not in args.site:
             continue
-        row = score_site(path, args.catalog, args.localizer)
+        row = score_site(path, args.catalog, (args.localizer, args.localizer_params))
         if row is not None:
             rows.append(row)
     print_rows(rows)
@@ -341,7 +345,8 @@ def random_main(args) -> int:
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="random-cisterns-") as tmp:
         catalog = Path(tmp)
-        jobs = [(path, catalog, args.localizer, args.far_pairs) for path in write_specs(cisterns, catalog)]
+        jobs = [(path, catalog, (args.localizer, args.localizer_params), args.far_pairs)
+                for path in write_specs(cisterns, catalog)]
         if args.workers > 1:
             with ProcessPoolExecutor(max_workers=args.workers) as pool:
                 rows = list(pool.map(_random_site, jobs))
@@ -358,11 +363,12 @@ def random_main(args) -> int:
     everything = groups["all"]
     print(f"pairs with >=50% overlap rejected: {everything['pairs_ge50_rejected']}, of which "
           f"{everything['pairs_ge50_rejected_correct']} with an estimate within 0.10 m")
-    failed = [r["site"] for r in rows if r["status"] != "ok"]
+    failed = [r["site"] for r in rows if r["status"] == "failed"]
+    partial = [r["site"] for r in rows if r["status"] == "partial"]
     per_site = wall / len(rows) if rows else float("nan")
     print(f"{len(rows)} sites in {wall:.1f} s ({per_site:.1f} s per site with {args.workers} worker(s); "
           f"median build {statistics.median(r['site_seconds'] for r in rows):.1f} s); "
-          f"failed builds: {', '.join(failed) or 'none'}")
+          f"partial: {len(partial)}; failed: {', '.join(failed) or 'none'}")
     if args.details:
         details = {"seed": args.seed, "workers": args.workers, "wall_seconds": wall, "far_pairs_per_site": args.far_pairs,
                    "groups": {k: {**v, "rates": rates(v)} for k, v in groups.items()}, "per_site": rows}
@@ -378,6 +384,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--site", action="append", default=[], help="only these site ids (demo catalog)")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     parser.add_argument("--localizer", help="use this localizer plugin instead of the records' own")
+    parser.add_argument("--localizer-params", type=json.loads, default={},
+                        help='localizer parameters as JSON, e.g. \'{"bridge_confidence": 0.8}\'')
     parser.add_argument("--random", type=int, metavar="N", help="N random multi-chamber cisterns instead of the catalog")
     parser.add_argument("--seed", type=int, default=1, help="seed of the random cisterns")
     parser.add_argument("--workers", type=int, default=1, help="sites built in parallel (--random)")

@@ -91,13 +91,15 @@ def test_effects_are_present():
     assert np.mean(scan.intensities[beyond] > 100) > 0.001
 
 
-def test_paper_and_cfar_on_the_pool_site():
+def test_every_segmentation_on_the_pool_site():
+    """The pool's simulated scans segment to the walls by the spec's rule (shadow) and the two others."""
     spec = load_spec(CATALOG / "specs" / "lair-pool.yaml")
     site = simulate_site(spec)
     assert len(site.scans) == 4
-    assert spec.segmentation.method == "paper" and spec.segmentation.min_range_m == pytest.approx(0.4)
+    assert spec.segmentation.method == "shadow" and spec.segmentation.min_range_m == pytest.approx(0.4)
     for sim in site.scans:
         assert fraction_within_one_bin(sim, spec.segmentation) > 0.7
+        assert fraction_within_one_bin(sim, spec.segmentation.model_copy(update={"method": "paper"})) > 0.7
         assert fraction_within_one_bin(sim, spec.segmentation.model_copy(update={"method": "cfar"})) > 0.75
 
 
