@@ -237,6 +237,8 @@ def matchers(*, karto_min_response: float | None = None, paper: bool = False,
     for label, name, overrides in configs:
         try:
             plugin = reg.load("matcher", name)
+            if getattr(plugin.instance, "needs_guess", False) and not (only and label in only):
+                continue  # a matcher for searches around a guess (every pair here starts from zero)
             params = plugin.validate_params(overrides)
             found[label] = lambda ref, mov, k, p=plugin.instance, q=params: p.match(ref, mov, q,
                                                                                    rng=np.random.default_rng(k))

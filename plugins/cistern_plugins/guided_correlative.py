@@ -140,6 +140,9 @@ class GuidedCorrelativeMatcher:
     """Coarse-to-fine correlative matching around a guess (the ``guided-correlative`` matcher)."""
 
     name: ClassVar[str] = "guided-correlative"
+    needs_guess: ClassVar[bool] = True
+    """Without a guess it searches a small window around zero displacement: benchmarks of global
+    matching leave it out."""
     Params: ClassVar[type[StageParams]] = GuidedCorrelativeParams
 
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator,
