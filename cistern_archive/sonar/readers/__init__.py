@@ -59,6 +59,17 @@ def register_reader(name: str, suffixes: tuple[str, ...], description: str = "",
     return decorate
 
 
+def header_check(sniff: Callable[[Path], bool], expected: str) -> Callable[[Path], None]:
+    """A ``check`` for :func:`register_reader` from a format's ``sniff``: refuses a file whose first
+    bytes are not ``expected`` (read from the head of the file only, whatever its size)."""
+
+    def check(path: Path) -> None:
+        if not sniff(path):
+            raise ReaderError(str(path), f"not {expected}")
+
+    return check
+
+
 def read_bytes(path: Path) -> bytes:
     """The whole file, or a :class:`ReaderError` naming it when it cannot be read."""
     try:

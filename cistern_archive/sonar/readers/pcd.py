@@ -34,7 +34,7 @@ import numpy as np
 
 from cistern_archive.errors import ReaderError
 from cistern_archive.sonar import marina
-from cistern_archive.sonar.readers import ReadResult, read_bytes, register_reader
+from cistern_archive.sonar.readers import ReadResult, header_check, read_bytes, register_reader
 from cistern_archive.sonar.scan import Scan, yaw_from_compass_deg
 
 BEAMS = 200
@@ -200,7 +200,7 @@ def _sniff(path: Path) -> bool:
 
 
 @register_reader("marina-pcd", (".pcd",), "Girona marina derived point cloud (one revolution per file)",
-                 sniff=_sniff)
+                 sniff=_sniff, check=header_check(_sniff, "a PCD point cloud: no FIELDS line in its first 512 bytes"))
 def read_pcd(path: Path) -> ReadResult:
     """Read one key-frame point cloud as a 200-beam scan (see the module docstring)."""
     points, warnings = read_points(path)

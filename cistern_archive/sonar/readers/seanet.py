@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from cistern_archive.errors import ReaderError
-from cistern_archive.sonar.readers import ReadResult, read_bytes, register_reader
+from cistern_archive.sonar.readers import ReadResult, header_check, read_bytes, register_reader
 from cistern_archive.sonar.scan import yaw_from_compass_deg
 from cistern_archive.sonar.sweeps import Beam, ScanTemplate, beams_to_scans
 from cistern_archive.tritech.codec import (
@@ -211,7 +211,8 @@ def decode_seanet_stream(data: bytes, path: Path, where: Callable[[int], str] | 
 
 
 @register_reader("seanet-raw", (".seanet", ".bin"), "raw SeaNet serial byte stream (live acquisition capture)",
-                 sniff=_sniff_raw)
+                 sniff=_sniff_raw,
+                 check=header_check(_sniff_raw, "a SeaNet stream: no valid packet in its first 4 KiB"))
 def read_seanet_raw(path: Path) -> ReadResult:
     """Read a raw SeaNet capture: every ``mtHeadData`` of the stream, split into sweeps."""
     data = read_bytes(path)
@@ -239,7 +240,16 @@ def _v4_index(data: bytes, start: int, stop: int, limit: int) -> list[int]:
     return [int(x) for x in offsets]
 
 
-@register_reader("seanet-v4log", (".v4log",), "Tritech SeaNet Pro V4LOG")
+def _sniff_v4log(path: Path) -> bool:
+    try:
+        with path.open("rb") as fh:
+            return fh.read(len(V4LOG_MAGIC)) == V4LOG_MAGIC
+    except OSError:
+        return False
+
+
+@register_reader("seanet-v4log", (".v4log",), "Tritech SeaNet Pro V4LOG", sniff=_sniff_v4log,
+                 check=header_check(_sniff_v4log, f"a V4LOG file: it does not start with {V4LOG_MAGIC!r}"))
 def read_v4log(path: Path) -> ReadResult:
     """Read a SeaNet Pro V4LOG file (layout in the module docstring)."""
     data = read_bytes(path)
@@ -355,7 +365,8 @@ def parse_rov_sentence(text: str) -> tuple[float, float] | None:
 
 
 @register_reader("seanet-udphub", (".csv",), "SeaNet UDP hub hex log (UdpHubLog_*.csv) with $ROV navigation",
-                 sniff=_sniff_udphub)
+                 sniff=_sniff_udphub,
+                 check=header_check(_sniff_udphub, "a UDP hub log: its first line is not a timestamped hex record"))
 def read_udphub(path: Path) -> ReadResult:
     """Read a ``UdpHubLog_*.csv``: port-4002 SeaNet stream plus port-13102 ``$ROV`` navigation."""
     raw = read_bytes(path)
