@@ -132,7 +132,7 @@ FROZEN_ENV = "CISTERN_BENCH_FROZEN_SOURCES"
 
 
 def freeze_sources(target: Path) -> Path:
-    """Copy the package, the built-in plugins and the templates to ``target`` (excluding caches).
+    """Copy the package (its templates included) and the built-in plugins to ``target`` (excluding caches).
 
     Build keys cover the package sources; on a tree that is being edited, a frozen copy keeps the code
     version fixed for the whole benchmark (the main process, the workers and the command).
@@ -141,8 +141,6 @@ def freeze_sources(target: Path) -> Path:
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     shutil.copytree(repo / "cistern_archive", target / "cistern_archive", ignore=ignore)
     shutil.copytree(repo / "plugins" / "cistern_plugins", target / "cistern_plugins", ignore=ignore)
-    if (repo / "templates").is_dir():
-        shutil.copytree(repo / "templates", target / "templates", ignore=ignore)
     return target
 
 

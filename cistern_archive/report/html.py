@@ -1,8 +1,9 @@
 """The one jinja2 environment of the report and thin keyword-only render helpers.
 
-Templates live in the repository's top-level ``templates/`` folder (beside the package, which is
-installed in editable mode); ``CISTERN_ARCHIVE_TEMPLATES`` points elsewhere. The environment is created
-once per folder and cached; autoescaping is on for every template; undefined variables raise.
+Templates are package data (``cistern_archive/report/templates/``, which the repository's top-level
+``templates/`` links to), so a wheel install renders as an editable one; ``CISTERN_ARCHIVE_TEMPLATES``
+points elsewhere (a site's own styling). The environment is created once per folder and cached;
+autoescaping is on for every template; undefined variables raise.
 """
 
 from __future__ import annotations
@@ -29,12 +30,12 @@ def templates_dir() -> Path:
     Raises
     ------
     CisternError
-        When neither ``$CISTERN_ARCHIVE_TEMPLATES`` nor the repository's ``templates/`` holds them.
+        When neither ``$CISTERN_ARCHIVE_TEMPLATES`` nor the package's ``templates/`` holds them.
     """
     candidates = []
     if os.environ.get(TEMPLATES_ENV):
         candidates.append(Path(os.environ[TEMPLATES_ENV]))
-    candidates.append(Path(__file__).resolve().parents[2] / "templates")
+    candidates.append(Path(__file__).resolve().parent / "templates")
     for folder in candidates:
         if all((folder / name).is_file() for name in REQUIRED):
             return folder

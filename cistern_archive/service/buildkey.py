@@ -46,16 +46,16 @@ def _hash_tree(digest: "hashlib._Hash", root: Path) -> None:
 def code_version() -> str:
     """``<package version>+src.<12 hex>``: the version plus a digest of the sources that shape a report.
 
-    Hashes ``cistern_archive``, the built-in ``cistern_plugins`` and the report templates (``templates/``
-    beside the package, or ``$CISTERN_ARCHIVE_TEMPLATES``), so that a code change rebuilds every site
-    even when the version number did not move.
+    Hashes ``cistern_archive`` (its report templates included), the built-in ``cistern_plugins`` and
+    ``$CISTERN_ARCHIVE_TEMPLATES`` when set, so that a code change rebuilds every site even when the
+    version number did not move.
     """
     import cistern_archive
     from cistern_archive import __version__
 
     package = Path(cistern_archive.__file__).resolve().parent
     digest = hashlib.sha256()
-    roots = [package, package.parent / "templates"]
+    roots = [package]
     if os.environ.get("CISTERN_ARCHIVE_TEMPLATES"):
         roots.append(Path(os.environ["CISTERN_ARCHIVE_TEMPLATES"]))
     spec = importlib.util.find_spec("cistern_plugins")
