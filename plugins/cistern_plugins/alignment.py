@@ -189,17 +189,26 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
     return AlignmentQuality(n_in, int(in_range.sum()), len(moved), rms, constraint)
 
 
-def verdict(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
-    """Empty string when the fit passes every limit, else the reason it does not."""
+def hard_limits(quality: AlignmentQuality, limits: ConvergenceThresholds, *, ratio: bool = True) -> str:
+    """The reason a fit fails the inlier count, the inlier share (with ``ratio``) or one of the two
+    corridor tests (``min_constraint``, ``max_weak_std_m``), or an empty string."""
     if quality.inliers < limits.min_inliers:
         return f"only {quality.inliers} inlier points (< {limits.min_inliers})"
-    if quality.inlier_ratio < limits.min_inlier_ratio:
+    if ratio and quality.inlier_ratio < limits.min_inlier_ratio:
         return f"inlier ratio {quality.inlier_ratio:.2f} < {limits.min_inlier_ratio:.2f}"
     if quality.constraint < limits.min_constraint:
         return f"walls constrain one direction only (constraint {quality.constraint:.3f} < {limits.min_constraint})"
     if quality.weak_std_m > limits.max_weak_std_m:
         return (f"weakly constrained: σ ≈ {quality.weak_std_m:.3f} m along the weakest direction "
                 f"(> {limits.max_weak_std_m} m)")
+    return ""
+
+
+def verdict(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
+    """Empty string when the fit passes every limit, else the reason it does not."""
+    why = hard_limits(quality, limits)
+    if why:
+        return why
     if quality.violation_ratio > limits.max_violation_ratio:
         return (f"{100 * quality.violation_ratio:.0f} % of wall points fall in the other scan's free space "
                 f"(> {100 * limits.max_violation_ratio:.0f} %)")

@@ -17,10 +17,13 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from typing import Literal
+
 import gtsam
 import numpy as np
+from pydantic import Field
 
-from cistern_archive.pipeline.contracts import MatchResult, Poses
+from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams
 from cistern_archive.sonar.scan import RangeScan
 
 
@@ -35,6 +38,24 @@ class GraphNoise:
     min_sigma_xy_m: float = 0.03
     compass_sigma_deg: float = 2.0
     max_iterations: int = 100
+
+
+class GraphParams(StageParams):
+    """The factor graph's noise and solver parameters, shared by the graph localizers."""
+
+    robust: Literal["huber", "cauchy", "none"] = "huber"
+    robust_k: float = Field(1.345, gt=0)
+    sigma_xy_m: float = Field(0.05, gt=0)
+    sigma_yaw_deg: float = Field(1.0, gt=0)
+    min_sigma_xy_m: float = Field(0.03, gt=0)
+    compass_sigma_deg: float = Field(2.0, gt=0)
+    max_iterations: int = Field(100, ge=1)
+    gate_chi2: float = Field(16.27, gt=0, description="99.9 % quantile of chi-square with 3 degrees of freedom")
+    gate_rounds: int = Field(3, ge=0)
+
+    def noise(self) -> GraphNoise:
+        return GraphNoise(self.robust, self.robust_k, self.sigma_xy_m, self.sigma_yaw_deg, self.min_sigma_xy_m,
+                          self.compass_sigma_deg, self.max_iterations)
 
 
 @dataclass(frozen=True)

@@ -43,25 +43,16 @@ from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
 from cistern_archive.sonar.scan import RangeScan
-from cistern_plugins.factor_graph import Edge, GraphNoise, poses_from_solution, solve_gated, spanning_tree
+from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, spanning_tree
 
 
-class PoseGraphParams(StageParams):
-    """Parameters of :class:`PoseGraphLocalizer`."""
+class PoseGraphParams(GraphParams):
+    """Parameters of :class:`PoseGraphLocalizer` (plus the graph's, :class:`GraphParams`)."""
 
     window: int = Field(3, ge=1)
     directions: Literal["both", "one"] = "both"
     guided: bool = False
     guess_radius_m: float = Field(0.5, gt=0)
-    robust: Literal["huber", "cauchy", "none"] = "huber"
-    robust_k: float = Field(1.345, gt=0)
-    sigma_xy_m: float = Field(0.05, gt=0)
-    sigma_yaw_deg: float = Field(1.0, gt=0)
-    min_sigma_xy_m: float = Field(0.03, gt=0)
-    compass_sigma_deg: float = Field(2.0, gt=0)
-    max_iterations: int = Field(100, ge=1)
-    gate_chi2: float = Field(16.27, gt=0)
-    gate_rounds: int = Field(3, ge=0)
 
 
 class PoseGraphLocalizer:
@@ -131,19 +122,10 @@ def _usable(matches: Sequence[MatchResult], n: int) -> list[MatchResult]:
             and np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all()]
 
 
-def _noise(p: PoseGraphParams) -> GraphNoise:
-    return GraphNoise(p.robust, p.robust_k, p.sigma_xy_m, p.sigma_yaw_deg, p.min_sigma_xy_m, p.compass_sigma_deg,
-                      p.max_iterations)
-
-
-def _edges(good: Sequence[MatchResult], p: PoseGraphParams) -> list[Edge]:
-    noise = _noise(p)
-    return [Edge.of_match(m, noise) for m in good]
-
-
 def _solve_gated(n: int, good: list[MatchResult], reference: int, p: PoseGraphParams):
     """Solve, then drop the worst match while its squared Mahalanobis residual exceeds the gate."""
-    return solve_gated(n, _edges(good, p), reference, _noise(p), p.gate_chi2, p.gate_rounds)
+    noise = p.noise()
+    return solve_gated(n, [Edge.of_match(m, noise) for m in good], reference, noise, p.gate_chi2, p.gate_rounds)
 
 
 def _reference(n: int, good: Sequence[MatchResult]) -> int:

@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import gtsam
 import numpy as np
@@ -52,13 +52,13 @@ from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
 from cistern_archive.sonar.scan import RangeScan
-from cistern_plugins.factor_graph import Edge, GraphNoise, match_covariance, poses_from_solution, solve_gated, wrap
+from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, wrap
 from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.wls import vertical_ties
 
 
-class SiteGraphParams(StageParams):
-    """Parameters of :class:`SiteGraphLocalizer`."""
+class SiteGraphParams(GraphParams):
+    """Parameters of :class:`SiteGraphLocalizer` (plus the graph's, :class:`GraphParams`)."""
 
     first_gap: int = Field(1, ge=1, description="first round: every pair up to this many stations apart")
     global_gap: int = Field(4, ge=1, description="unjoined scans: global matches up to this many stations away")
@@ -68,15 +68,6 @@ class SiteGraphParams(StageParams):
                                      "(depth levels of a bell-shaped cistern lie about 1 m apart)")
     consistency_m: float = Field(0.2, gt=0, description="cycle closure tolerance in translation")
     consistency_deg: float = Field(3.0, gt=0, description="cycle closure tolerance in heading")
-    robust: Literal["huber", "cauchy", "none"] = "huber"
-    robust_k: float = Field(1.345, gt=0)
-    sigma_xy_m: float = Field(0.05, gt=0)
-    sigma_yaw_deg: float = Field(1.0, gt=0)
-    min_sigma_xy_m: float = Field(0.03, gt=0)
-    compass_sigma_deg: float = Field(2.0, gt=0)
-    max_iterations: int = Field(100, ge=1)
-    gate_chi2: float = Field(16.27, gt=0, description="99.9 % quantile of chi-square with 3 degrees of freedom")
-    gate_rounds: int = Field(3, ge=0)
     tie_sigma_m: float = Field(0.02, gt=0, description="horizontal sigma of a vertical tie")
     bridge_confidence: float = Field(0.9, ge=0, le=1, description="least confidence of the match that joins "
                                      "two groups of scans (matches without a confidence always may)")
@@ -84,10 +75,6 @@ class SiteGraphParams(StageParams):
                                              "inflated by this, so converged matches dominate where they exist")
     below: dict[str, str] = Field(default_factory=dict,
                                   description="vertical ties: station -> station it was taken directly below")
-
-    def noise(self) -> GraphNoise:
-        return GraphNoise(self.robust, self.robust_k, self.sigma_xy_m, self.sigma_yaw_deg, self.min_sigma_xy_m,
-                          self.compass_sigma_deg, self.max_iterations)
 
 
 @dataclass

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_plugins.alignment import AlignmentQuality, ConvergenceThresholds, verdict
+from cistern_plugins.alignment import AlignmentQuality, ConvergenceThresholds, hard_limits, verdict
 
 CALIBRATION_FILE = Path(__file__).with_name("verification.json")
 FEATURES = ("inlier_ratio", "violation_ratio", "violation_min", "log_weak_std", "rms_ratio", "log_inliers",
@@ -114,13 +114,9 @@ def judge(quality: AlignmentQuality, limits: ConvergenceThresholds) -> str:
     ``limits.calibrated``, else the fixed limits of :func:`~cistern_plugins.alignment.verdict`."""
     if not limits.calibrated:
         return verdict(quality, limits)
-    if quality.inliers < limits.min_inliers:
-        return f"only {quality.inliers} inlier points (< {limits.min_inliers})"
-    if quality.constraint < limits.min_constraint:
-        return f"walls constrain one direction only (constraint {quality.constraint:.3f} < {limits.min_constraint})"
-    if quality.weak_std_m > limits.max_weak_std_m:
-        return (f"weakly constrained: σ ≈ {quality.weak_std_m:.3f} m along the weakest direction "
-                f"(> {limits.max_weak_std_m} m)")
+    why = hard_limits(quality, limits, ratio=False)
+    if why:
+        return why
     model = calibration()
     p = model.probability(features(quality, limits))
     if p < model.threshold:
