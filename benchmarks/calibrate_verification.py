@@ -78,6 +78,7 @@ def site_pairs(n_sites: int, seed: int, max_gap: int = 3) -> list[SimulatedPair]
 def labelled_fits(pairs: list[SimulatedPair], matcher_names=MATCHERS) -> tuple[np.ndarray, np.ndarray]:
     """Features and labels (1 correct, 0 wrong) of the pose every matcher found on every pair."""
     registry = default_registry()
+    models = [ReferenceModel(pair.reference) for pair in pairs]
     rows, labels = [], []
     for name in matcher_names:
         plugin = registry.load("matcher", name)
@@ -96,7 +97,7 @@ def labelled_fits(pairs: list[SimulatedPair], matcher_names=MATCHERS) -> tuple[n
                 label = 0
             else:
                 continue
-            quality = ReferenceModel(pair.reference).assess_pair(pair.moving, pose, limits)
+            quality = models[k].assess_pair(pair.moving, pose, limits)
             rows.append(features(quality, limits))
             labels.append(label)
     return np.array(rows), np.array(labels)

@@ -81,10 +81,10 @@ from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  
 from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
 
 
-def with_localizer(loaded, localizer: str | tuple[str | None, dict] | None):
+def with_localizer(loaded, localizer: tuple[str | None, dict] | None):
     """The record with another localizer plugin and/or localizer parameters (``(name, params)``; a
     ``None`` name keeps the record's plugin), or unchanged."""
-    name, params = (localizer, {}) if not isinstance(localizer, tuple) else localizer
+    name, params = localizer or (None, {})
     if name is None and not params:
         return loaded
     current = loaded.record.pipeline.localizer

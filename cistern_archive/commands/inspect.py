@@ -16,13 +16,8 @@ import typer
 
 from cistern_archive.commands import EXIT_USAGE
 from cistern_archive.errors import ReaderError
+from cistern_archive.pipeline.results import finite_or_none
 from cistern_archive.sonar.scan import Scan
-
-
-def _finite(value: float) -> float | None:
-    """``value`` as a float, or None when it is NaN or infinite (JSON has no such numbers)."""
-    value = float(value)
-    return value if math.isfinite(value) else None
 
 
 def scan_summary(scan: Scan) -> dict:
@@ -31,15 +26,15 @@ def scan_summary(scan: Scan) -> dict:
     return {
         "beams": scan.n_beams,
         "bins": scan.n_bins,
-        "bin_size_m": _finite(scan.bin_size_m),
-        "start_range_m": _finite(scan.start_range_m),
-        "max_range_m": _finite(scan.max_range_m),
-        "bearing_min_deg": _finite(degrees.min()) if degrees.size else None,
-        "bearing_max_deg": _finite(degrees.max()) if degrees.size else None,
-        "full_scale": _finite(scan.full_scale),
-        "timestamp": _finite(scan.timestamp),
-        "yaw_deg": _finite(math.degrees(scan.yaw_rad)),
-        "depth_m": _finite(scan.depth_m),
+        "bin_size_m": finite_or_none(scan.bin_size_m),
+        "start_range_m": finite_or_none(scan.start_range_m),
+        "max_range_m": finite_or_none(scan.max_range_m),
+        "bearing_min_deg": finite_or_none(degrees.min()) if degrees.size else None,
+        "bearing_max_deg": finite_or_none(degrees.max()) if degrees.size else None,
+        "full_scale": finite_or_none(scan.full_scale),
+        "timestamp": finite_or_none(scan.timestamp),
+        "yaw_deg": finite_or_none(math.degrees(scan.yaw_rad)),
+        "depth_m": finite_or_none(scan.depth_m),
         "sonar_model": scan.sonar_model,
     }
 

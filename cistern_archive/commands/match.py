@@ -10,6 +10,7 @@ import typer
 
 from cistern_archive.catalog.models import DEFAULT_PLUGINS
 from cistern_archive.commands import EXIT_OK
+from cistern_archive.pipeline.results import finite_or_none
 
 
 def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, seed: int,
@@ -31,20 +32,16 @@ def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, se
         "matcher": matcher,
         "reference": str(reference),
         "moving": str(moving),
-        "dx_m": _finite(result.dx_m),
-        "dy_m": _finite(result.dy_m),
-        "dyaw_rad": _finite(result.dyaw_rad),
-        "weight": _finite(result.weight),
-        "confidence": _finite(result.confidence),
+        "dx_m": finite_or_none(result.dx_m),
+        "dy_m": finite_or_none(result.dy_m),
+        "dyaw_rad": finite_or_none(result.dyaw_rad),
+        "weight": finite_or_none(result.weight),
+        "confidence": finite_or_none(result.confidence),
         "converged": bool(result.converged),
         "iterations": int(result.iterations),
         "seconds": round(result.seconds, 6),
         "reason": result.reason,
     }
-
-
-def _finite(value: float | None) -> float | None:
-    return float(value) if value is not None and np.isfinite(value) else None
 
 
 def _describe(out: dict) -> str:

@@ -6,6 +6,7 @@ arrays (scans, grids, match histories) that figures need and JSON should not hol
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -14,6 +15,11 @@ from pydantic import BaseModel, ConfigDict, Field
 from cistern_archive.pipeline.contracts import DimensionTable, MapResult, MatchResult, Poses
 from cistern_archive.pipeline.status import SiteStatus
 from cistern_archive.sonar.scan import RangeScan, Scan
+
+
+def finite_or_none(value: float | None) -> float | None:
+    """``value`` as a float, or ``None`` when it is missing or not finite (JSON has no NaN)."""
+    return float(value) if value is not None and math.isfinite(value) else None
 
 RESULT_SCHEMA_VERSION = 1
 

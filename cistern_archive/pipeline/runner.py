@@ -45,6 +45,7 @@ from cistern_archive.pipeline.results import (
     SiteBuild,
     SiteResult,
     StageFailure,
+    finite_or_none,
 )
 from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.status import label_indices, site_status, weakness
@@ -290,18 +291,15 @@ def _match_problem(result: MatchResult) -> str:
     if cov is None:
         return ""
     cov = np.asarray(cov, dtype=np.float64)
-    if cov.shape != (3, 3) or not np.isfinite(cov).all():
-        return f"covariance of shape {cov.shape} with non-finite entries" if cov.shape == (3, 3) else \
-            f"covariance of shape {cov.shape}, expected (3, 3)"
+    if cov.shape != (3, 3):
+        return f"covariance of shape {cov.shape}, expected (3, 3)"
+    if not np.isfinite(cov).all():
+        return "covariance with non-finite entries"
     if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12):
         return "covariance not symmetric"
     if np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
         return "covariance not positive definite"
     return ""
-
-
-def _finite(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
 
 
 def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, Stage],
@@ -318,12 +316,13 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         placed = bool(poses is not None and poses.placed[k])
         sigma = (None, None)
         if placed and poses.covariance is not None:
-            sigma = (_finite(math.sqrt(poses.covariance[k, 0, 0])), _finite(math.sqrt(poses.covariance[k, 1, 1])))
+            sigma = (finite_or_none(math.sqrt(poses.covariance[k, 0, 0])),
+                     finite_or_none(math.sqrt(poses.covariance[k, 1, 1])))
         t = truth.get(ref.station)
         scans.append(ScanPose(
             index=k, id=ref.station, file=ref.file,
-            x_m=_finite(poses.xy_m[k, 0]) if placed else None,
-            y_m=_finite(poses.xy_m[k, 1]) if placed else None,
+            x_m=finite_or_none(poses.xy_m[k, 0]) if placed else None,
+            y_m=finite_or_none(poses.xy_m[k, 1]) if placed else None,
             yaw_rad=float(poses.yaw_rad[k]) if poses is not None else (raw.yaw_rad if raw else 0.0),
             depth_m=raw.depth_m if raw else (ref.depth_m or 0.0),
             placed=placed,
@@ -335,8 +334,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
     result.scans = scans
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
     result.pairs = [
-        PairResult(i=m.i, j=m.j, dx_m=_finite(m.dx_m), dy_m=_finite(m.dy_m), dyaw_rad=_finite(m.dyaw_rad),
-                   weight=_finite(m.weight) or 0.0, confidence=_finite(m.confidence), tentative=m.tentative,
+        PairResult(i=m.i, j=m.j, dx_m=finite_or_none(m.dx_m), dy_m=finite_or_none(m.dy_m), dyaw_rad=finite_or_none(m.dyaw_rad),
+                   weight=finite_or_none(m.weight) or 0.0, confidence=finite_or_none(m.confidence), tentative=m.tentative,
                    converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason,
                    guess=None if m.guess is None else [m.guess.dx_m, m.guess.dy_m, m.guess.dyaw_rad, m.guess.radius_m])
         for m in build.matches
@@ -345,7 +344,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, stages: dict[str, St
         result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels,
                                               cell_m=_cell_at(build, row.depth_m), poses=poses)
                              for k, row in enumerate(build.table.rows)]
-        result.dimension_stats = {k: _finite(v) for k, v in sorted(build.table.stats.items())}
+        result.dimension_stats = {k: finite_or_none(v) for k, v in sorted(build.table.stats.items())}
     if build.map_result is not None:
         result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
     result.status, result.status_reasons = site_status(
@@ -379,13 +378,13 @@ def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *
     """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`)
     and with its 95 % interval (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of
     ``cell_m``) when it is measured."""
-    map_m, std = _finite(row.map_m), _finite(row.probe_std_m)
+    map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
     weak = weakness(len(row.probes), requested, std) if map_m is not None else ""
     ci = None if map_m is None or cell_m is None else ci95_half_width(
         row.probes, cell_m, [line for line in row.probe_lines if line is not None], poses)
     return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
-                           reference_kind=row.reference_kind, diff_m=_finite(row.diff_m),
-                           depth_m=_finite(row.depth_m) or 0.0, probe_std_m=std,
+                           reference_kind=row.reference_kind, diff_m=finite_or_none(row.diff_m),
+                           depth_m=finite_or_none(row.depth_m) or 0.0, probe_std_m=std,
                            probes_m=[float(p) for p in row.probes], probes_requested=requested,
                            weak=bool(weak), weak_reason=weak, note=label_indices(row.note, labels))
 

@@ -284,7 +284,7 @@ class FreeSpace:
         chamber the other scan's sonar cannot)."""
         if len(self.angles) == 0 or len(points) == 0:
             return np.ones(len(points), dtype=bool)
-        nearest, checked, r, r_echo = self._nearest(points)
+        _, checked, r, r_echo = self._nearest(points)
         return ~(checked & (r > r_echo + tolerance_m))
 
     def in_free_space(self, points: np.ndarray, margin_m: float) -> np.ndarray:
@@ -366,7 +366,7 @@ class ReferenceModel:
         moved = transform(src, pose)
         seen = self.free.visible(moved, limits.free_space_margin_m)
         q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
-                             seen) if self.tree is not None else self.assess(moved, limits.inlier_distance_m)
+                             seen)
         back = transform(self.points, inverse(pose))
         mov_free = FreeSpace(moving)
         mov_tree = cKDTree(src) if len(src) >= 3 else None

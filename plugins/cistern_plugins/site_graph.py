@@ -172,8 +172,9 @@ class SiteGraphLocalizer:
         edges = graph.ties + graph.edges
         keep = frozenset(range(len(graph.ties)))
         solved, result, kept = solve_gated(n, edges, reference, p.noise(), p.gate_chi2, p.gate_rounds, keep)
+        kept_ids = {id(e) for e in kept}
         for e in edges:
-            if not any(e is k for k in kept):
+            if id(e) not in kept_ids:
                 graph.rejected[(e.i, e.j)] = "dropped by the χ² gate of the site's least-squares fit"
         placed = set(spanning_tree(n, kept, reference))
         reasons = [unplaced_reason(k, reference, graph, matches, labels) for k in range(n)]
@@ -237,14 +238,17 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         pending = [k for k in pending if k not in members]
     for k in pending:
         e = edges[k]
-        off = _disagreement(graph, e)
-        if off is None:
+        if graph.group[e.i] != graph.group[e.j]:
             graph.rejected[(e.i, e.j)] = "not converged, and no converged match joins its two stations' groups"
-        elif _within(off, p, graph, e):
+            continue
+        solved = graph.pose[e.i].between(graph.pose[e.j])
+        residual = solved.between(gtsam.Pose2(*e.z))
+        if _close(residual, p, solved):
             graph.edges.append(e)
         else:
-            graph.rejected[(e.i, e.j)] = (f"inconsistent with the other matches of the site: {off[0]:.2f} m and "
-                                          f"{math.degrees(off[1]):.1f}° off")
+            graph.rejected[(e.i, e.j)] = (f"inconsistent with the other matches of the site: "
+                                          f"{math.hypot(residual.x(), residual.y()):.2f} m and "
+                                          f"{math.degrees(abs(wrap(residual.theta()))):.1f}° off")
     return graph
 
 
@@ -343,21 +347,6 @@ def _merge(graph: Graph, i: int, j: int, z: gtsam.Pose2) -> None:
     for k in graph.members(gj):
         graph.pose[k] = offset.compose(graph.pose[k])
         graph.group[k] = gi
-
-
-def _disagreement(graph: Graph, e: Edge) -> tuple[float, float] | None:
-    """How far an edge between scans of one group is from the group's geometry (m, rad), or ``None``
-    when its scans are in different groups."""
-    if graph.group[e.i] != graph.group[e.j]:
-        return None
-    residual = graph.pose[e.i].between(graph.pose[e.j]).between(gtsam.Pose2(*e.z))
-    return math.hypot(residual.x(), residual.y()), abs(wrap(residual.theta()))
-
-
-def _within(off: tuple[float, float], p: SiteGraphParams, graph: Graph, e: Edge) -> bool:
-    rel = graph.pose[e.i].between(graph.pose[e.j])
-    lever = math.hypot(rel.x(), rel.y()) * math.sin(math.radians(p.consistency_deg))
-    return off[0] <= p.consistency_m + lever and off[1] <= math.radians(p.consistency_deg)
 
 
 def _largest_group(graph: Graph) -> int:
