@@ -11,10 +11,10 @@ WORKERS ?= $(shell nproc 2>/dev/null || echo 1)
 
 .PHONY: demo test test-slow test-all bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml plugins/cistern-plugins/pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test]' -e plugins/cistern-plugins
 	touch $(STAMP)
 
 # rebuild exits 1 when a site is `partial` or `failed` (listed with its reasons); the demo still succeeds

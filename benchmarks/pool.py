@@ -85,10 +85,11 @@ def seed_record(seed: int, spec, root: Path, overrides: dict[str, dict]):
     parameter ``overrides``; returns the loaded record and the simulation (for its truth)."""
     sim = simulate_site(spec.model_copy(update={"seed": seed}))
     loaded = load_record(write_site(sim, root, record_dir="sites"), root)
-    pipeline = loaded.record.pipeline
+    record = default_registry().resolve(loaded.record)
+    pipeline = record.pipeline
     stages = {stage: getattr(pipeline, stage).model_copy(
         update={"params": {**getattr(pipeline, stage).params, **overrides[stage]}}) for stage in overrides}
-    record = loaded.record.model_copy(update={"pipeline": pipeline.model_copy(update=stages)})
+    record = record.model_copy(update={"pipeline": pipeline.model_copy(update=stages)})
     return replace(loaded, record=record), sim
 
 

@@ -87,7 +87,7 @@ def with_localizer(loaded, localizer: tuple[str | None, dict] | None):
     name, params = localizer or (None, {})
     if name is None and not params:
         return loaded
-    current = loaded.record.pipeline.localizer
+    current = default_registry().choice(loaded.record.pipeline, "localizer")
     choice = StageChoice(plugin=name or current.plugin, params=params)
     pipeline = loaded.record.pipeline.model_copy(update={"localizer": choice})
     return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))

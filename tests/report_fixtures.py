@@ -193,7 +193,7 @@ def make_site_build(
                            depth_m=1.5, placed=False, reason="not reached") for k in range(n)]
     provenance = Provenance(
         code_version="0.1.0",
-        plugins=[PluginProvenance(stage=s, plugin=p, distribution="cistern-archive", version="0.1.0", params=prm)
+        plugins=[PluginProvenance(stage=s, plugin=p, distribution="cistern-plugins", version="0.1.0", params=prm)
                  for s, p, prm in [("matcher", "pf-pairwise", {"particles": 300, "tau_pw": 6.0}),
                                    ("localizer", "wls", {}), ("mapper", "evidence-grid", {"cell_m": CELL_M}),
                                    ("comparator", "mosaic", {})]],

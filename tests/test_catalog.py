@@ -10,7 +10,8 @@ import yaml
 
 from catalog_helpers import RECORD, write_catalog
 from cistern_archive.catalog.loader import load_record
-from cistern_archive.catalog.models import DEFAULT_PLUGINS, SiteRecord
+from cistern_archive.catalog.models import SiteRecord
+from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.catalog.validate import validate_catalog
 from cistern_archive.errors import CatalogError
 
@@ -30,7 +31,8 @@ def assert_problem(problems: list[str], path_name: str, line: int, field: str, m
 def test_valid_record_gets_defaults(tmp_path):
     path = write_catalog(tmp_path)
     loaded = load_record(path, tmp_path)
-    assert loaded.record.pipeline.matcher.plugin == DEFAULT_PLUGINS["matcher"]
+    assert loaded.record.pipeline.matcher is None
+    assert default_registry().choice(loaded.record.pipeline, "matcher").plugin == "correlative"
     assert loaded.record.location.redact is True
     assert loaded.record.station_index() == {"S1": 0, "S2": 1}
 

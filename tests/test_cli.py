@@ -46,7 +46,7 @@ def test_plugins_json_lists_builtins_with_provenance():
     for key in (("matcher", "pf-pairwise"), ("localizer", "wls"), ("mapper", "evidence-grid"),
                 ("comparator", "mosaic")):
         assert rows[key]["status"] == "ok", rows[key]
-        assert rows[key]["distribution"] == "cistern-archive"
+        assert rows[key]["distribution"] == "cistern-plugins"
 
 
 @pytest.mark.parametrize("matcher", ["pf-pairwise"])

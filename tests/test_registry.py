@@ -8,7 +8,8 @@ import sys
 import pytest
 
 from cistern_archive.errors import PluginError
-from cistern_archive.pipeline.registry import GROUPS, Registry
+from cistern_archive.catalog.models import PipelineSpec, StageChoice
+from cistern_archive.pipeline.registry import DEFAULTS_GROUP, GROUPS, Registry
 
 
 def entry(name: str, value: str, stage: str = "matcher") -> md.EntryPoint:
@@ -76,8 +77,39 @@ def test_bad_params_name_the_field(registry):
 def test_installed_builtins_carry_provenance():
     registry = Registry()
     info = registry.info("matcher", "pf-pairwise")
-    assert info.distribution == "cistern-archive"
+    assert info.distribution == "cistern-plugins"
     assert info.provenance()["plugin"] == "pf-pairwise"
     assert set(GROUPS) == {"matcher", "localizer", "mapper", "comparator"}
     for stage in GROUPS:
         assert registry.names(stage), f"no built-in {stage} registered"
+
+
+def default_entry(stage: str, value: str) -> md.EntryPoint:
+    return md.EntryPoint(name=stage, value=value, group=DEFAULTS_GROUP)
+
+
+def test_defaults_come_from_a_declaring_distribution():
+    matchers = {"matcher": [entry("compass-only", "stage_plugins:CompassOnlyMatcher")]}
+    registry = Registry(matchers, defaults=[default_entry("matcher", "stage_plugins:CompassOnlyMatcher")])
+    assert registry.default("matcher") == "compass-only"
+    record_pipeline = PipelineSpec()
+    assert registry.choice(record_pipeline, "matcher") == StageChoice(plugin="compass-only")
+    named = PipelineSpec(matcher=StageChoice(plugin="other", params={"a": 1}))
+    assert registry.choice(named, "matcher").plugin == "other"
+
+
+def test_missing_unknown_and_conflicting_defaults_are_named():
+    matchers = {"matcher": [entry("compass-only", "stage_plugins:CompassOnlyMatcher")]}
+    with pytest.raises(PluginError, match="no default matcher: no installed distribution declares one"):
+        Registry(matchers, defaults=[]).default("matcher")
+    with pytest.raises(PluginError, match="is not an installed matcher plugin"):
+        Registry(matchers, defaults=[default_entry("matcher", "elsewhere:Matcher")]).default("matcher")
+    rival = [default_entry("matcher", "stage_plugins:CompassOnlyMatcher"), default_entry("matcher", "x:Y")]
+    with pytest.raises(PluginError, match="conflicting default matchers"):
+        Registry(matchers, defaults=rival).default("matcher")
+
+
+def test_installed_defaults_name_one_plugin_per_stage():
+    registry = Registry()
+    for stage in GROUPS:
+        assert registry.default(stage) in registry.names(stage)

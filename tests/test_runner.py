@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cistern_archive.catalog.models import DEFAULT_PLUGINS
+from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.catalog.validate import validate_catalog, validate_record
 from cistern_archive.evaluation import align_rigid_2d, position_errors
 from cistern_archive.pipeline.runner import build_site, write_site_result
@@ -50,8 +50,8 @@ def test_pool_result_has_the_documented_fields(pool_build, tmp_path):
     assert {"i", "j", "dx_m", "dy_m", "weight", "converged", "iterations"} <= set(data["pairs"][0])
     assert {"name", "map_m", "reference_m", "reference_kind", "diff_m"} <= set(data["dimensions"][0])
     plugins = {p["stage"]: p for p in data["provenance"]["plugins"]}
-    assert plugins["matcher"]["plugin"] == DEFAULT_PLUGINS["matcher"]
-    assert plugins["matcher"]["distribution"] == "cistern-archive"
+    assert plugins["matcher"]["plugin"] == default_registry().default("matcher")
+    assert plugins["matcher"]["distribution"] == "cistern-plugins"
     assert plugins["matcher"]["params"]  # every parameter, defaults included
     assert data["provenance"]["seeds"]["site"] == pool_build.record.seed
     assert set(data["timings_s"]) >= {"load", "segment", "match", "localize", "map", "compare", "total"}

@@ -1,5 +1,5 @@
-"""A normal (non-editable) install renders reports: the wheel, installed alone in a fresh virtual
-environment, rebuilds a bundled site from another folder."""
+"""A normal (non-editable) install renders reports: the core's wheel and the built-in plugins' wheel,
+installed alone in a fresh virtual environment, rebuild a bundled site from another folder."""
 
 import subprocess
 import sys
@@ -14,13 +14,15 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.slow
 def test_the_wheel_rebuilds_a_bundled_site_from_another_folder(tmp_path):
     wheels = tmp_path / "wheels"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", str(ROOT), "-w", str(wheels)],
-                   check=True, timeout=600)
-    wheel = next(wheels.glob("cistern_archive-*.whl"))
+    for source in (ROOT, ROOT / "plugins" / "cistern-plugins"):
+        subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", str(source), "-w", str(wheels)],
+                       check=True, timeout=600)
+    core = next(wheels.glob("cistern_archive-*.whl"))
+    plugins = next(wheels.glob("cistern_plugins-*.whl"))
     env_dir = tmp_path / "venv"
     venv.create(env_dir, with_pip=True)
     python = env_dir / "bin" / "python"
-    subprocess.run([str(python), "-m", "pip", "install", "--quiet", str(wheel)], check=True, timeout=1800)
+    subprocess.run([str(python), "-m", "pip", "install", "--quiet", str(core), str(plugins)], check=True, timeout=1800)
     work = tmp_path / "elsewhere"
     work.mkdir()
     out, archive = work / "site", work / "archive"

@@ -20,14 +20,6 @@ STATION = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9._-]{0,62}[A-Za-z0-9])?")
 """Station labels: they name files (``data/<site>/<station>.seanet``, ``scans/<station>.csv``), so no
 path separators, no leading dot, no white space, at most 64 characters."""
 
-DEFAULT_PLUGINS = {
-    "matcher": "correlative",
-    "localizer": "site-graph",
-    "mapper": "evidence-grid",
-    "comparator": "mosaic",
-}
-
-
 class Strict(BaseModel):
     # NaN and inf are refused in every float field: they cannot be hashed into a build key (canonical
     # JSON) and no measurement of a site is infinite.
@@ -176,10 +168,16 @@ class StageChoice(Strict):
 
 
 class PipelineSpec(Strict):
-    matcher: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["matcher"]))
-    localizer: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["localizer"]))
-    mapper: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["mapper"]))
-    comparator: StageChoice = Field(default_factory=lambda: StageChoice(plugin=DEFAULT_PLUGINS["comparator"]))
+    """The plugin of each stage; a stage left out (``None``) gets the installed default.
+
+    The defaults come from the plugin registry (entry-point group ``cistern_archive.defaults``), never
+    from the catalog: ``Registry.resolve`` fills them in, and ``record.json`` holds the resolved record.
+    """
+
+    matcher: StageChoice | None = None
+    localizer: StageChoice | None = None
+    mapper: StageChoice | None = None
+    comparator: StageChoice | None = None
 
 
 class TruthPose(Strict):

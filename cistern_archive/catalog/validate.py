@@ -53,7 +53,11 @@ def check_plugins(loaded: LoadedRecord, registry: Registry, *, load_errors: bool
     """
     problems = []
     for stage in STAGES:
-        choice = getattr(loaded.record.pipeline, stage)
+        try:
+            choice = registry.choice(loaded.record.pipeline, stage)
+        except PluginError as exc:
+            problems.append(f"{loaded.path}:{loaded.line_of('pipeline')}: pipeline.{stage}: {exc}")
+            continue
         installed = choice.plugin in registry.names(stage)
         try:
             registry.load(stage, choice.plugin)

@@ -8,14 +8,16 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from cistern_archive.catalog.models import DEFAULT_PLUGINS
 from cistern_archive.commands import EXIT_OK
 from cistern_archive.pipeline.results import finite_or_none
 
 
-def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, seed: int,
+def match_files(reference: Path, moving: Path, *, matcher: str | None, params: dict, seed: int,
                 segmentation: str, min_range_m: float) -> dict:
-    """Read two scan files, segment them, match ``moving`` against ``reference``; a JSON-able dict."""
+    """Read two scan files, segment them, match ``moving`` against ``reference``; a JSON-able dict.
+
+    ``matcher`` ``None`` is the installed default matcher.
+    """
     from cistern_archive.catalog.models import Segmentation
     from cistern_archive.pipeline.registry import default_registry
     from cistern_archive.pipeline.runner import match_pair
@@ -23,6 +25,7 @@ def match_files(reference: Path, moving: Path, *, matcher: str, params: dict, se
     from cistern_archive.sonar.segmentation import segment
 
     registry = default_registry()
+    matcher = matcher or registry.default("matcher")
     plugin = registry.load("matcher", matcher)
     checked = registry.check_params("matcher", matcher, params)
     settings = Segmentation(method=segmentation, min_range_m=min_range_m)
@@ -60,8 +63,8 @@ def register(app: typer.Typer) -> None:
     def match(
         reference: Path = typer.Argument(..., exists=True, dir_okay=False, help="Reference scan file (i)."),
         moving: Path = typer.Argument(..., exists=True, dir_okay=False, help="Scan to locate (j)."),
-        matcher: str = typer.Option(DEFAULT_PLUGINS["matcher"], "--matcher",
-                                    help="Matcher plugin name (default: the catalog's default matcher)."),
+        matcher: str = typer.Option("", "--matcher", show_default=False,
+                                    help="Matcher plugin name (default: the installed default matcher)."),
         params: str = typer.Option("{}", "--params", help="Matcher parameters as a JSON object."),
         seed: int = typer.Option(0, "--seed", help="Random seed."),
         segmentation: str = typer.Option("paper", "--segmentation", help="Beam segmentation: paper, cfar or shadow."),
@@ -76,7 +79,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(f"--params is not JSON: {exc}") from None
         if not isinstance(parsed, dict):
             raise typer.BadParameter("--params must be a JSON object")
-        out = match_files(reference, moving, matcher=matcher, params=parsed, seed=seed, segmentation=segmentation,
+        out = match_files(reference, moving, matcher=matcher or None, params=parsed, seed=seed, segmentation=segmentation,
                           min_range_m=min_range)
         if as_json:
             typer.echo(json.dumps(out, allow_nan=False))

@@ -14,10 +14,14 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from cistern_archive.catalog.models import PipelineSpec, SiteRecord, StageChoice
 from cistern_archive.errors import PluginError
 from cistern_archive.pipeline.contracts import PROTOCOLS, STAGES, StageParams
 
 GROUPS = {stage: f"cistern_archive.{stage}s" for stage in STAGES}
+DEFAULTS_GROUP = "cistern_archive.defaults"
+"""Entry points named after a stage whose value is one of that stage's plugin objects: the plugin a
+record gets when it does not name one. The core names no plugin; a distribution declares its defaults."""
 
 
 @dataclass(frozen=True)
@@ -60,10 +64,14 @@ class Registry:
         isolate the registry).
     """
 
-    def __init__(self, entry_points: dict[str, list[md.EntryPoint]] | None = None):
+    def __init__(self, entry_points: dict[str, list[md.EntryPoint]] | None = None,
+                 defaults: list[md.EntryPoint] | None = None):
         if entry_points is None:
             entry_points = {stage: list(md.entry_points(group=group)) for stage, group in GROUPS.items()}
+            if defaults is None:
+                defaults = list(md.entry_points(group=DEFAULTS_GROUP))
         self._entry_points = {stage: {ep.name: ep for ep in eps} for stage, eps in entry_points.items()}
+        self._defaults = list(defaults or [])
         self._loaded: dict[tuple[str, str], LoadedPlugin] = {}
         self.errors: dict[tuple[str, str], str] = {}
 
@@ -81,6 +89,37 @@ class Registry:
             distribution=dist.name if dist is not None else "unknown",
             version=dist.version if dist is not None else "unknown",
         )
+
+    def default(self, stage: str) -> str:
+        """The name of the plugin a record gets for ``stage`` when it names none.
+
+        Raises
+        ------
+        PluginError
+            When no installed distribution declares a default for the stage, when its declared object is
+            not one of the stage's plugins, or when two distributions declare different defaults.
+        """
+        declared = sorted({ep.value for ep in self._defaults if ep.name == stage})
+        if not declared:
+            raise PluginError(f"no default {stage}: no installed distribution declares one "
+                              f"(entry-point group {DEFAULTS_GROUP}); name the {stage} in the record")
+        if len(declared) > 1:
+            raise PluginError(f"conflicting default {stage}s declared: {', '.join(declared)}; "
+                              f"name the {stage} in the record")
+        names = [name for name, ep in self._entry_points.get(stage, {}).items() if ep.value == declared[0]]
+        if not names:
+            raise PluginError(f"default {stage} {declared[0]} is not an installed {stage} plugin")
+        return min(names)
+
+    def choice(self, pipeline: PipelineSpec, stage: str) -> StageChoice:
+        """The record's choice for ``stage``, or the installed default with default parameters."""
+        named = getattr(pipeline, stage)
+        return named if named is not None else StageChoice(plugin=self.default(stage))
+
+    def resolve(self, record: SiteRecord) -> SiteRecord:
+        """The record with every stage named (the form ``record.json`` stores and build keys hash)."""
+        choices = {stage: self.choice(record.pipeline, stage) for stage in STAGES}
+        return record.model_copy(update={"pipeline": PipelineSpec(**choices)})
 
     def all_info(self) -> list[PluginInfo]:
         return [self.info(stage, name) for stage in STAGES for name in self.names(stage)]

@@ -101,7 +101,7 @@ def resolve_stages(record: SiteRecord, registry: Registry) -> dict[str, Stage]:
     stages = {}
     ties = {s.station: s.below for s in record.scans if s.below is not None}
     for stage in STAGES:
-        choice = getattr(record.pipeline, stage)
+        choice = registry.choice(record.pipeline, stage)
         plugin = registry.load(stage, choice.plugin)
         params = dict(choice.params)
         if stage == "localizer" and ties and "below" in plugin.params_model.model_fields:
@@ -163,6 +163,7 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
     try:
         with timer.stage("configure"):
             stages = _run("configure", str(loaded.path), lambda: resolve_stages(record, registry))
+            build.record = record = registry.resolve(record)  # record.json names every stage
         with timer.stage("load"):
             for ref in record.scans:
                 build.raw_scans.append(_run("load", ref.file, lambda ref=ref: load_scan(loaded, ref)))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.metadata as md
 import importlib.util
 import json
 import os
@@ -46,9 +47,9 @@ def _hash_tree(digest: "hashlib._Hash", root: Path) -> None:
 def code_version() -> str:
     """``<package version>+src.<12 hex>``: the version plus a digest of the sources that shape a report.
 
-    Hashes ``cistern_archive`` (its report templates included), the built-in ``cistern_plugins`` and
-    ``$CISTERN_ARCHIVE_TEMPLATES`` when set, so that a code change rebuilds every site even when the
-    version number did not move.
+    Hashes ``cistern_archive`` (its report templates included) and ``$CISTERN_ARCHIVE_TEMPLATES`` when
+    set, so that a code change rebuilds every site even when the version number did not move. Plugins
+    are hashed per stage, whatever distribution they come from (:func:`plugin_material`).
     """
     import cistern_archive
     from cistern_archive import __version__
@@ -58,9 +59,6 @@ def code_version() -> str:
     roots = [package]
     if os.environ.get("CISTERN_ARCHIVE_TEMPLATES"):
         roots.append(Path(os.environ["CISTERN_ARCHIVE_TEMPLATES"]))
-    spec = importlib.util.find_spec("cistern_plugins")
-    if spec is not None and spec.submodule_search_locations:
-        roots.append(Path(list(spec.submodule_search_locations)[0]))
     for root in roots:
         if root.is_dir():
             digest.update(root.name.encode())
@@ -69,14 +67,38 @@ def code_version() -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def _module_digest(module: str) -> str:
+def distribution_digest(distribution: str, module: str) -> str:
+    """SHA-256 of the source files of the distribution that provides ``module``.
+
+    The files are those ``importlib.metadata`` lists for the distribution (a regular install). An
+    editable install lists only a path hook, so then the whole top-level package of ``module`` is
+    hashed. Either way a change to any file of the plugin's package (a shared helper, a data file it
+    reads) changes the key, not only a change to the plugin's own module.
+    """
+    digest = hashlib.sha256()
     try:
-        spec = importlib.util.find_spec(module)
+        files = [f for f in (md.distribution(distribution).files or []) if f.suffix in SOURCE_SUFFIXES]
+    except md.PackageNotFoundError:
+        files = []
+    sources = sorted((str(f), Path(str(f.locate()))) for f in files if "__pycache__" not in f.parts)
+    sources = [(name, path) for name, path in sources if path.is_file()]
+    if any(name.endswith(".py") for name, _ in sources):
+        for name, path in sources:
+            digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+        return digest.hexdigest()
+    try:
+        spec = importlib.util.find_spec(module.split(".")[0])
     except (ImportError, ValueError):
         return "unknown"
-    if spec is None or not spec.origin or not Path(spec.origin).is_file():
+    if spec is None:
         return "unknown"
-    return hashlib.sha256(Path(spec.origin).read_bytes()).hexdigest()
+    if spec.submodule_search_locations:
+        _hash_tree(digest, Path(list(spec.submodule_search_locations)[0]))
+    elif spec.origin and Path(spec.origin).is_file():
+        digest.update(Path(spec.origin).read_bytes())
+    else:
+        return "unknown"
+    return digest.hexdigest()
 
 
 def plugin_material(loaded: LoadedRecord, registry: Registry) -> list[dict[str, Any]]:
@@ -90,7 +112,7 @@ def plugin_material(loaded: LoadedRecord, registry: Registry) -> list[dict[str, 
     """
     items = []
     for stage in STAGES:
-        choice = getattr(loaded.record.pipeline, stage)
+        choice = registry.choice(loaded.record.pipeline, stage)
         info = registry.info(stage, choice.plugin)
         try:
             params = registry.check_params(stage, choice.plugin, choice.params).model_dump(mode="json")
@@ -98,7 +120,7 @@ def plugin_material(loaded: LoadedRecord, registry: Registry) -> list[dict[str, 
             params = {"record_params": choice.params, "load_error": str(exc)}
         items.append({"stage": stage, "plugin": info.name, "distribution": info.distribution,
                       "version": info.version, "params": params,
-                      "source": _module_digest(info.value.split(":")[0])})
+                      "source": distribution_digest(info.distribution, info.value.split(":")[0])})
     return items
 
 
