@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.catalog.loader import load_record  # noqa: E402
 from cistern_archive.evaluation import in_compass_frame  # noqa: E402
+from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
 from cistern_archive.sonar.simulation_output import write_site  # noqa: E402
 from cistern_archive.sonar.simulator import simulate_site  # noqa: E402

@@ -144,7 +144,8 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     from cistern_archive import __version__
     from cistern_archive.archive.preservation import write_preservation
     from cistern_archive.pipeline.registry import default_registry
-    from cistern_archive.pipeline.runner import build_site, write_json_atomic, write_site_result
+    from cistern_archive.files import write_json_atomic
+    from cistern_archive.pipeline.runner import build_site, write_site_result
     from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site
     from cistern_archive.service.rebuild import is_current, plan_site, published_build

@@ -25,6 +25,7 @@ import psutil
 
 from cistern_archive.archive.digest import CHUNK, file_sha256, is_sha256
 from cistern_archive.errors import CisternError, EnvironmentProblem
+from cistern_archive.files import fsync_dir
 
 READ_ONLY = stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH
 TMP_PREFIX = "obj-"
@@ -55,20 +56,6 @@ class StoredObject:
     sha256: str
     size: int
     created: bool
-
-
-def fsync_dir(path: Path) -> None:
-    """Flush a directory entry (a rename or a new file) to disk where the platform allows it."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 class ObjectStore:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cistern_archive.files import write_bytes_atomic
 from cistern_archive.pipeline.contracts import EvidenceGrid
 
 
@@ -43,17 +44,9 @@ def png_bytes(image: np.ndarray) -> bytes:
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def write_png(path: str | os.PathLike, grid: EvidenceGrid) -> Path:
     """Write the grid's occupancy image (see :func:`grid_image`) as a PNG."""
-    _atomic_write(Path(path), png_bytes(grid_image(grid)))
+    write_bytes_atomic(Path(path), png_bytes(grid_image(grid)))
     return Path(path)
 
 
@@ -79,7 +72,7 @@ def write_npz(path: str | os.PathLike, grids: Sequence[EvidenceGrid]) -> Path:
     arrays["origin_xy_m"] = np.array([g.origin_xy_m for g in grids], dtype=np.float64).reshape(-1, 2)
     arrays["cell_m"] = np.array([g.cell_m for g in grids], dtype=np.float64)
     arrays["depth_m"] = np.array([g.depth_m for g in grids], dtype=np.float64)
-    _atomic_write(Path(path), npz_bytes(arrays))
+    write_bytes_atomic(Path(path), npz_bytes(arrays))
     return Path(path)
 
 

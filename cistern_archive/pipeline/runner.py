@@ -7,11 +7,8 @@ it never propagates to other sites.
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import platform
-import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -26,6 +23,7 @@ from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.errors import StageError
+from cistern_archive.files import write_json_atomic
 from cistern_archive.pipeline.contracts import (
     STAGES,
     DimensionRow,
@@ -406,20 +404,6 @@ def _unmeasured(record: SiteRecord, dimensions: Sequence[DimensionResult]) -> li
             note = notes.get((ref.name, ref.kind)) or "no wall found"
             out.append(f"{ref.name} ({ref.kind}): {note}")
     return out
-
-
-def write_json_atomic(data: Any, path: Path) -> None:
-    """Write JSON to a temporary sibling and rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_site_result(build: SiteBuild, site_dir: Path) -> Path:

@@ -86,7 +86,7 @@ class RebuildSummary(BaseModel):
         return EXIT_SITES_FAILED if self.not_ok else EXIT_OK
 
     def write(self, path: Path) -> Path:
-        from cistern_archive.pipeline.runner import write_json_atomic
+        from cistern_archive.files import write_json_atomic
 
         write_json_atomic(self.model_dump(mode="json"), path)
         os.chmod(path, 0o644)  # published beside the reports, readable like them

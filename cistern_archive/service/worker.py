@@ -36,6 +36,7 @@ from typing import Any
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
 from cistern_archive.errors import CisternError
+from cistern_archive.files import write_text_atomic
 from cistern_archive.service.lock import holds_lock, is_running
 from cistern_archive.service.publish import discard, publish, staging_dir
 from cistern_archive.service.summary import SiteOutcome
@@ -119,10 +120,7 @@ class StageMarker:
 
     def __call__(self, stage: str) -> None:
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_name(f".{self.path.name}.tmp")
-            tmp.write_text(stage, encoding="utf-8")
-            os.replace(tmp, self.path)
+            write_text_atomic(self.path, stage)
         except OSError:
             pass
 
@@ -182,7 +180,8 @@ def run_site(task: SiteTask) -> SiteOutcome:
         unless the failure was a pipeline stage (whose failure report is published).
     """
     from cistern_archive.catalog.loader import load_record
-    from cistern_archive.pipeline.runner import build_site, write_json_atomic, write_site_result
+    from cistern_archive.files import write_json_atomic
+    from cistern_archive.pipeline.runner import build_site, write_site_result
     from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site
 

@@ -33,13 +33,13 @@ import io
 import json
 import math
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from cistern_archive.errors import ReaderError
+from cistern_archive.files import atomic_file
 from cistern_archive.sonar.scan import Scan
 
 SCHEMA = "cistern-archive/scan"
@@ -87,16 +87,8 @@ def write_scan(scan: Scan, path: str | os.PathLike) -> Path:
     }
     if scan.beam_times_s is not None:
         arrays["beam_times_s"] = np.asarray(scan.beam_times_s, dtype=np.float64)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            _write_npz_deterministic(handle, arrays)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_file(path, binary=True) as handle:
+        _write_npz_deterministic(handle, arrays)
     return path
 
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import datetime as dt
 import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +28,7 @@ import yaml
 from cistern_archive.catalog.loader import LoadedRecord, load_record, record_paths
 from cistern_archive.catalog.models import SiteRecord, check_station
 from cistern_archive.errors import CatalogError, CisternError
+from cistern_archive.files import write_text_atomic
 from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.sonar.scan import yaw_from_compass_deg
 from cistern_archive.tritech.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
@@ -166,23 +166,6 @@ def _unique(path: Path) -> Path:
         k += 1
 
 
-def _atomic_text(path: Path, text: str, validate: Callable[[Path], None]) -> None:
-    """Write ``text`` to a temporary sibling, ``validate`` it, fsync, then rename over ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        validate(Path(tmp))
-        mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _entry_yaml(entry: dict, indent: int) -> str:
     """One ``- key: value`` list item at ``indent`` spaces, in block style."""
     body = yaml.safe_dump([entry], sort_keys=False, default_flow_style=False, allow_unicode=True, width=100)
@@ -232,7 +215,7 @@ def append_scan_to_record(loaded: LoadedRecord, entry: dict) -> Path:
     def validate(tmp: Path) -> None:
         load_record(tmp, loaded.root)
 
-    _atomic_text(path, updated, validate)
+    write_text_atomic(path, updated, newline="", validate=validate)
     return path
 
 
