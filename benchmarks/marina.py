@@ -36,7 +36,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from cistern_archive.errors import CisternError  # noqa: E402
+from cistern_archive.core.errors import CisternError  # noqa: E402
 from cistern_archive.navigation.accuracy import evaluate_track  # noqa: E402
 from cistern_archive.navigation.calibration import fit_start_calibration  # noqa: E402
 from cistern_archive.navigation.conventions import Convention, Revolution, consecutive_overlap  # noqa: E402

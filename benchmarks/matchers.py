@@ -66,9 +66,9 @@ import numpy as np
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.errors import PluginError
+from cistern_archive.core.errors import PluginError
 from cistern_archive.evaluation import strict_json, wilson_interval
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.pf_pairwise import PAPER_CONFIGURATION
 from cistern_archive.testing.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import score

@@ -20,7 +20,7 @@ is beyond the range setting): ``hit`` within ``TOL_BINS`` (2) bins; ``false`` wa
 that from the wall: ``before`` it (reverberation, near field, spikes in the water), ``behind`` it (ghosts,
 the smear of a far wall) or on a beam with no wall in range; ``missed``: no echo although the wall is in
 range. ``score`` = hit - false - missed (fractions of all beams): a beam states either a wall at its
-range or, with no echo, free water up to the range setting (:class:`~cistern_archive.sonar.scan.RangeScan`),
+range or, with no echo, free water up to the range setting (:class:`~cistern_archive.core.scan.RangeScan`),
 so a missed wall (free water through a wall) is as wrong as a false one.
 
 Seed sets: ``--set tune`` (random seeds 1..N, the demo specs with their catalog seed plus 3000) chose the

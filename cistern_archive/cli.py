@@ -12,7 +12,7 @@ import sys
 import typer
 
 from cistern_archive.commands import COMMAND_MODULES, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
-from cistern_archive.errors import CisternError, EnvironmentProblem, describe_os_error
+from cistern_archive.core.errors import CisternError, EnvironmentProblem, describe_os_error
 
 app = typer.Typer(
     name="cistern-archive",

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from cistern_archive.sonar.interchange import write_scan
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.core.scan import Scan
 
 
 def ring_scan(station: str = "S1", radius_m: float = 2.0) -> Scan:

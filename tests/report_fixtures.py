@@ -35,7 +35,7 @@ from cistern_archive.pipeline.results import (
 from cistern_archive.grid.surface import wall_surface
 from cistern_archive.pipeline.runner import dimension_result
 from cistern_archive.pipeline.status import site_status
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 WIDTH_M, LENGTH_M = 3.61, 7.21
 STATIONS_POOL = np.array([[1.0, 1.4], [2.6, 2.2], [1.1, 5.6], [2.5, 6.1]])

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from cistern_archive.catalog.loader import load_record
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.interchange import read_scan
 from cistern_archive.sonar.readers import read_file
-from cistern_archive.sonar.scan import compass_deg_from_yaw
+from cistern_archive.core.scan import compass_deg_from_yaw
 from cistern_archive.tritech.acquire import acquire_scan, insert_scan_text
 from cistern_archive.tritech.codec import iter_packets
 from cistern_archive.tritech.driver import DriverConfig

@@ -13,7 +13,7 @@ from cistern_archive.catalog.loader import load_record
 from cistern_archive.catalog.models import SiteRecord
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.catalog.validate import validate_catalog
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 
 
 def problems_for(tmp_path: Path, text: str) -> list[str]:

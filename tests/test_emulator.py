@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import serial
 
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.geometry import ray_cast
 from cistern_archive.sonar.simulator_spec import EffectsSpec
 from cistern_archive.tritech.codec import MessageType, StreamDecoder, decode_head_data, iter_packets

@@ -16,7 +16,7 @@ from cistern_archive.grid.raycast import OccupancyLookup, distance_field
 from cistern_archive.grid.tiles import TiledGrid
 from cistern_archive.pipeline.contracts import EvidenceGrid, Mapper, Poses
 from cistern_archive.pipeline.registry import Registry
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.evidence_grid import EvidenceGridMapper, GridParams, depth_slices
 
 BOX = [rectangle(4.0, 6.0, centre=(2.0, 3.0))]

@@ -336,7 +336,7 @@ def test_a_full_disk_in_the_archive_gives_one_line_and_leaves_no_partial_object(
 
 @needs_mount
 def test_a_full_disk_while_an_object_is_copied_leaves_neither_a_partial_object_nor_an_index_row(tmp_path):
-    from cistern_archive.errors import EnvironmentProblem
+    from cistern_archive.core.errors import EnvironmentProblem
 
     source = tmp_path / "long-recording.bin"
     source.write_bytes(os.urandom(6_000_000))

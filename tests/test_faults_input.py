@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from catalog_helpers import RECORD, ring_scan, write_catalog
 from cistern_archive.catalog.loader import load_record
 from cistern_archive.catalog.validate import validate_catalog
-from cistern_archive.errors import CatalogError, ReaderError
+from cistern_archive.core.errors import CatalogError, ReaderError
 from cistern_archive.sonar.interchange import read_scan, write_scan
 from fault_helpers import digest_tree, guard, one_line_error, run_cli  # noqa: F401  (guard is a fixture)
 
@@ -227,7 +227,7 @@ def test_a_zip_bomb_npz_is_refused_from_its_headers(tmp_path):
     del zeros
     assert path.stat().st_size < 2_000_000
     run, peak_kib = _peak_kib_of(f"from cistern_archive.sonar.readers import read_file\n"
-                                 f"from cistern_archive.errors import ReaderError\n"
+                                 f"from cistern_archive.core.errors import ReaderError\n"
                                  f"try:\n    read_file({str(path)!r})\nexcept ReaderError as exc:\n"
                                  f"    print('REFUSED', exc)\n")
     assert "REFUSED" in run.stdout and "at most" in run.stdout, run.stdout + run.stderr

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from cistern_archive.pipeline.contracts import MatchResult
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import checked_match, match_pair
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 MATCHERS = ["pf-pairwise", "icp", "correlative", "particle-icp"]
 

@@ -16,7 +16,7 @@ from cistern_archive.navigation.motion import compensate, inverse_transform_poin
 from cistern_archive.navigation.track import dead_reckon, se2_between
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 from cistern_archive.sonar.interchange import read_scan, write_scan
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 
 def _straight(speed=1.0, yaw=math.pi / 2, seconds=10.0, port=0.0):
@@ -117,7 +117,7 @@ def test_interchange_refuses_version_2_without_beam_times(tmp_path):
     with zipfile.ZipFile(path, "w") as archive:
         for name, blob in members.items():
             archive.writestr(name, blob)
-    from cistern_archive.errors import ReaderError
+    from cistern_archive.core.errors import ReaderError
 
     with pytest.raises(ReaderError, match="version 2 needs the array beam_times_s"):
         read_scan(path)
@@ -270,7 +270,7 @@ def test_se2_between_is_the_relative_pose():
 
 
 def test_survey_loader_names_what_is_missing(tmp_path):
-    from cistern_archive.errors import ReaderError
+    from cistern_archive.core.errors import ReaderError
     from cistern_archive.navigation.survey import load_marina_survey
 
     with pytest.raises(ReaderError, match=r"no file matching '\*_DVL.log'"):

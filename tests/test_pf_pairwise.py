@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from cistern_archive.grid.polygon import polygon_scan, rectangle
 from cistern_archive.pipeline.contracts import Matcher, MatchResult
 from cistern_archive.pipeline.registry import Registry
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.pf_pairwise import PFPairwiseMatcher, PFParams, _score
 
 ROOM = [

@@ -3,7 +3,7 @@
 import numpy as np
 
 from cistern_archive.pipeline.contracts import MatchResult
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.pose_graph import PoseGraphLocalizer, PoseGraphParams
 
 TRUTH = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.5], [3.0, 0.2], [4.0, 0.0]])

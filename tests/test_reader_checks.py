@@ -2,7 +2,7 @@
 
 import pytest
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.readers import check_file
 
 JUNK = b"\x00junk" * 2000

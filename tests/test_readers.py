@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.readers import READERS, detect_format, read_file
 from cistern_archive.sonar.sweeps import split_sweeps
 from cistern_archive.tritech.codec import HeadData, encode_head_data, encode_packet, MessageType
@@ -317,7 +317,7 @@ def _seed(fmt: str) -> bytes:
     if fmt == "marina-pcd":
         return b"VERSION 0.7\nFIELDS x y z\nPOINTS 2\nDATA ascii\n1 2 0\n-3 4 0\n"
     from cistern_archive.sonar.interchange import write_scan
-    from cistern_archive.sonar.scan import Scan
+    from cistern_archive.core.scan import Scan
 
     with tempfile.TemporaryDirectory() as tmp:
         path = write_scan(Scan(np.zeros(2), np.ones((2, 3), np.uint8), 255, 0.1), Path(tmp) / "s.npz")

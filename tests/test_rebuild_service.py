@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from cistern_archive.archive import Archive, verify_archive
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 from cistern_archive.service.rebuild import rebuild
 from service_helpers import (CLI, FAST_REPORT, comparable_result, copy_built, copy_catalog, make_catalog,
                              report_is_complete)

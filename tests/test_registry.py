@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from cistern_archive.errors import PluginError
+from cistern_archive.core.errors import PluginError
 from cistern_archive.catalog.models import PipelineSpec, StageChoice
 from cistern_archive.pipeline.registry import DEFAULTS_GROUP, GROUPS, Registry
 

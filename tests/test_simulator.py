@@ -197,7 +197,7 @@ def test_corridor_ring_has_constant_width():
 def test_spec_validation_names_the_problem(tmp_path: Path):
     from pydantic import ValidationError
 
-    from cistern_archive.errors import CatalogError
+    from cistern_archive.core.errors import CatalogError
 
     with pytest.raises(ValidationError, match="exactly one of"):
         RingSpec(rectangle=(0, 0, 1, 1), ellipse=(0, 0, 1, 1))

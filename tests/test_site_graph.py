@@ -4,7 +4,7 @@ matches rejected as a set, tentative matches only with corroboration, vertical t
 import numpy as np
 
 from cistern_archive.pipeline.contracts import MatchResult
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
 
 TRUTH = np.array([[0.0, 0.0], [1.5, 0.0], [3.0, 0.5], [4.5, 0.2], [6.0, 0.0], [7.5, 0.4]])

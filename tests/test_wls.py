@@ -10,7 +10,7 @@ from numpy.testing import assert_allclose
 
 from cistern_archive.pipeline.contracts import Localizer, MatchResult
 from cistern_archive.pipeline.registry import Registry
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.wls import WLSLocalizer, WLSParams, combine, converged_measurements, estimates
 
 TRUTH = np.array([[0.0, 0.0], [1.5, 0.2], [3.1, -0.1], [4.4, 0.5]])

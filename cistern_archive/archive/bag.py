@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from cistern_archive.archive.repository import Archive, default_archive_dir
-from cistern_archive.errors import CatalogError, CisternError
+from cistern_archive.core.errors import CatalogError, CisternError
 
 CHECKSUMS = ("sha256", "sha512")
 
@@ -144,7 +144,7 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     from cistern_archive import __version__
     from cistern_archive.archive.preservation import write_preservation
     from cistern_archive.pipeline.registry import default_registry
-    from cistern_archive.files import write_json_atomic
+    from cistern_archive.core.files import write_json_atomic
     from cistern_archive.pipeline.runner import build_site, write_site_result
     from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site

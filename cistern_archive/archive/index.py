@@ -14,7 +14,7 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
-from cistern_archive.errors import EnvironmentProblem
+from cistern_archive.core.errors import EnvironmentProblem
 
 EVENT_TYPES = ("ingest", "digest", "build", "publish", "fixity")
 

@@ -24,8 +24,8 @@ from pathlib import Path
 import psutil
 
 from cistern_archive.archive.digest import CHUNK, file_sha256, is_sha256
-from cistern_archive.errors import CisternError, EnvironmentProblem
-from cistern_archive.files import fsync_dir
+from cistern_archive.core.errors import CisternError, EnvironmentProblem
+from cistern_archive.core.files import fsync_dir
 
 READ_ONLY = stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH
 TMP_PREFIX = "obj-"

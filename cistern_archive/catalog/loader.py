@@ -21,7 +21,7 @@ import yaml
 from pydantic import ValidationError
 
 from cistern_archive.catalog.models import SiteRecord
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 
 RECORD_SUFFIXES = (".yaml", ".yml")
 MAX_RECORD_BYTES = 1 << 20

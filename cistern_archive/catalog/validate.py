@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cistern_archive.catalog.loader import LoadedRecord, format_loc, load_record, record_paths
-from cistern_archive.errors import CatalogError, PluginError
+from cistern_archive.core.errors import CatalogError, PluginError
 from cistern_archive.pipeline.contracts import STAGES
 from cistern_archive.pipeline.registry import Registry, default_registry
 

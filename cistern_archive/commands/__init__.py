@@ -1,10 +1,12 @@
 """One module per CLI command; each defines ``register(app)`` adding its command to the typer app."""
 
-EXIT_OK = 0
-EXIT_SITES_FAILED = 1
-EXIT_USAGE = 2
-EXIT_INTERNAL = 3
-EXIT_INTERRUPTED = 130
+from cistern_archive.core.exitcodes import (  # noqa: F401  (the commands' exit codes)
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_SITES_FAILED,
+    EXIT_USAGE,
+)
 
 COMMAND_MODULES = (
     "rebuild",

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from cistern_archive.commands import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
-from cistern_archive.errors import CisternError, EnvironmentProblem
+from cistern_archive.core.errors import CisternError, EnvironmentProblem
 
 
 def register(app: typer.Typer) -> None:

@@ -15,9 +15,9 @@ import numpy as np
 import typer
 
 from cistern_archive.commands import EXIT_USAGE
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.pipeline.results import finite_or_none
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.core.scan import Scan
 
 
 def scan_summary(scan: Scan) -> dict:

@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from cistern_archive.commands import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
-from cistern_archive.errors import CisternError, EnvironmentProblem
+from cistern_archive.core.errors import CisternError, EnvironmentProblem
 
 
 class PlainProgress:

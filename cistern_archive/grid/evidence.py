@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 @dataclass(frozen=True)

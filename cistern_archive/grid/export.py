@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.files import write_bytes_atomic
+from cistern_archive.core.files import write_bytes_atomic
 from cistern_archive.pipeline.contracts import EvidenceGrid
 
 

@@ -1,7 +1,7 @@
 """Range scans ray cast inside polygons: known geometry for tests, conformance checks and benchmarks.
 
 This is not the sonar simulator (which models intensities, speckle and the beam pattern); it produces
-:class:`~cistern_archive.sonar.scan.RangeScan` objects directly, with optional Gaussian range noise,
+:class:`~cistern_archive.core.scan.RangeScan` objects directly, with optional Gaussian range noise,
 dropped beams and spurious echoes, so that matchers and mappers can be checked against exact truth.
 """
 
@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 def rectangle(width_m: float, length_m: float, *, centre: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:

@@ -37,7 +37,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
 from cistern_archive.grid.volume import common_lattice, interpolate_layers, resample
-from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses
+from cistern_archive.core.grids import EvidenceGrid, MapResult
+from cistern_archive.core.poses import Poses
 
 
 class SurfaceParams(BaseModel):

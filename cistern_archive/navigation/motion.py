@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cistern_archive.navigation.track import Track
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 
 def scan_echoes(scan: Scan, *, threshold: float = 0.5, min_range_m: float = 0.0, max_gap_bins: int = 2,

@@ -34,7 +34,7 @@ from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import match_pair, match_rounds
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.readers.pcd import read_points
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 class SurveyConfig(BaseModel):

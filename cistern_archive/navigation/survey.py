@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.navigation.track import OdometryNoise, Track, dead_reckon
 from cistern_archive.sonar import marina
 

@@ -1,7 +1,7 @@
 """Dead reckoning of a vehicle from body-frame bottom velocity and heading, with covariance.
 
 Frames: the map frame is ENU (x east, y north), yaw counter-clockwise from east (as in
-:mod:`cistern_archive.sonar.scan`); the body frame is x forward, y to port. A body velocity ``v`` moves
+:mod:`cistern_archive.core.scan`); the body frame is x forward, y to port. A body velocity ``v`` moves
 the vehicle by ``R(yaw) v`` in the map frame.
 
 Model (:func:`dead_reckon`): the heading samples (a compass, e.g. 10 Hz) set the integration grid;
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cistern_archive.sonar.scan import wrap_angle
+from cistern_archive.core.scan import wrap_angle
 
 
 @dataclass(frozen=True)

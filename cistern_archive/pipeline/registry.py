@@ -15,7 +15,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from cistern_archive.catalog.models import PipelineSpec, SiteRecord, StageChoice
-from cistern_archive.errors import PluginError
+from cistern_archive.core.errors import PluginError
 from cistern_archive.pipeline.contracts import PROTOCOLS, STAGES, StageParams
 
 GROUPS = {stage: f"cistern_archive.{stage}s" for stage in STAGES}

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from cistern_archive.pipeline.contracts import DimensionTable, MapResult, MatchResult, Poses
 from cistern_archive.pipeline.status import SiteStatus
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 
 def finite_or_none(value: float | None) -> float | None:

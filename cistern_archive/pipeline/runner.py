@@ -22,8 +22,8 @@ import numpy as np
 from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
-from cistern_archive.errors import StageError
-from cistern_archive.files import write_json_atomic
+from cistern_archive.core.errors import StageError
+from cistern_archive.core.files import write_json_atomic
 from cistern_archive.pipeline.contracts import (
     STAGES,
     DimensionRow,
@@ -48,7 +48,7 @@ from cistern_archive.pipeline.results import (
 from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.status import label_indices, site_status, weakness
 from cistern_archive.sonar.readers import read_file
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 T = TypeVar("T")
 

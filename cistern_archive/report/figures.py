@@ -29,7 +29,7 @@ from matplotlib.ticker import MaxNLocator
 
 from cistern_archive.pipeline.contracts import DimensionTable, EvidenceGrid, MatchResult, Poses
 from cistern_archive.report.files import save_figure, write_png
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 rcParams["svg.hashsalt"] = "cistern-archive"
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import jinja2
 
-from cistern_archive.errors import CisternError
+from cistern_archive.core.errors import CisternError
 from cistern_archive.report.files import format_number
 
 TEMPLATES_ENV = "CISTERN_ARCHIVE_TEMPLATES"

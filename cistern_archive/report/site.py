@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from cistern_archive import __version__
-from cistern_archive.errors import CisternError
+from cistern_archive.core.errors import CisternError
 from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
@@ -34,7 +34,7 @@ from cistern_archive.report.files import (
 )
 from cistern_archive.report.gltf import write_glb
 from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_site_page, signed, with_interval
-from cistern_archive.sonar.scan import compass_deg_from_yaw
+from cistern_archive.core.scan import compass_deg_from_yaw
 
 SECTION_TITLES = {
     "failure": "Build failed",

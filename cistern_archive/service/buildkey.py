@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from cistern_archive.catalog.loader import LoadedRecord
-from cistern_archive.errors import PluginError
+from cistern_archive.core.errors import PluginError
 from cistern_archive.pipeline.contracts import STAGES
 from cistern_archive.pipeline.registry import Registry
 

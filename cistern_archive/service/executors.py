@@ -15,7 +15,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, TypeVar
 
-from cistern_archive.errors import CisternError
+from cistern_archive.core.errors import CisternError
 
 T = TypeVar("T")
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"

@@ -21,7 +21,7 @@ from typing import Any
 
 import psutil
 
-from cistern_archive.errors import CisternError, EnvironmentProblem
+from cistern_archive.core.errors import CisternError, EnvironmentProblem
 
 LOCK_NAME = ".rebuild.lock"
 

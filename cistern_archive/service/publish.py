@@ -18,7 +18,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from cistern_archive.files import fsync_dir
+from cistern_archive.core.files import fsync_dir
 
 TMP_MARK = ".tmp-"
 OLD_MARK = ".old-"

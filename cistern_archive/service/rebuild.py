@@ -12,7 +12,7 @@ Order of a rebuild of ``OUT``:
    ingest every input of every selected site into the archive (re-checking the stored copies it relies
    on, restoring damaged ones from intact originals; scan files their reader refuses from the headers
    are not copied) and compute its build key; a site whose inputs cannot be read fails alone, an
-   archive that cannot be written stops the rebuild (:class:`~cistern_archive.errors.EnvironmentProblem`);
+   archive that cannot be written stops the rebuild (:class:`~cistern_archive.core.errors.EnvironmentProblem`);
 4. skip the sites whose published ``build.json`` has the same key and status ``ok`` or ``partial``
    (unless ``force``; a ``failed`` site is always retried);
 5. run :func:`~cistern_archive.service.worker.run_site` for the others on the chosen executor, in
@@ -33,7 +33,7 @@ from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
 from cistern_archive.archive.repository import Archive, default_archive_dir
 from cistern_archive.catalog.loader import LoadedRecord, record_paths
-from cistern_archive.errors import CatalogError, CisternError, EnvironmentProblem
+from cistern_archive.core.errors import CatalogError, CisternError, EnvironmentProblem
 from cistern_archive.pipeline.registry import Registry, default_registry
 from cistern_archive.service.buildkey import BuildKey, build_key, code_version
 from cistern_archive.service.executors import choose_executor
@@ -91,7 +91,7 @@ def unreadable_inputs(loaded: LoadedRecord) -> set[str]:
     They are not copied into the archive (a junk file of any size would otherwise be kept for ever);
     the site's build then fails at its ``load`` stage naming the file and the problem.
     """
-    from cistern_archive.errors import ReaderError
+    from cistern_archive.core.errors import ReaderError
     from cistern_archive.sonar.readers import check_file
 
     refused = set()

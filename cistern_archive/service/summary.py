@@ -8,7 +8,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from cistern_archive.commands import EXIT_OK, EXIT_SITES_FAILED, EXIT_USAGE
+from cistern_archive.core.exitcodes import EXIT_OK, EXIT_SITES_FAILED, EXIT_USAGE
 
 SUMMARY_SCHEMA_VERSION = 1
 
@@ -86,7 +86,7 @@ class RebuildSummary(BaseModel):
         return EXIT_SITES_FAILED if self.not_ok else EXIT_OK
 
     def write(self, path: Path) -> Path:
-        from cistern_archive.files import write_json_atomic
+        from cistern_archive.core.files import write_json_atomic
 
         write_json_atomic(self.model_dump(mode="json"), path)
         os.chmod(path, 0o644)  # published beside the reports, readable like them

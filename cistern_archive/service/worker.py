@@ -35,8 +35,8 @@ from typing import Any
 
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
-from cistern_archive.errors import CisternError
-from cistern_archive.files import write_text_atomic
+from cistern_archive.core.errors import CisternError
+from cistern_archive.core.files import write_text_atomic
 from cistern_archive.service.lock import holds_lock, is_running
 from cistern_archive.service.publish import discard, publish, staging_dir
 from cistern_archive.service.summary import SiteOutcome
@@ -180,7 +180,7 @@ def run_site(task: SiteTask) -> SiteOutcome:
         unless the failure was a pipeline stage (whose failure report is published).
     """
     from cistern_archive.catalog.loader import load_record
-    from cistern_archive.files import write_json_atomic
+    from cistern_archive.core.files import write_json_atomic
     from cistern_archive.pipeline.runner import build_site, write_site_result
     from cistern_archive.report.config import ReportConfig
     from cistern_archive.report.site import render_site

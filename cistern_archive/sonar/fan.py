@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 PNG_METADATA = {"Software": None}
 

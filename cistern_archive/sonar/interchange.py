@@ -38,9 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import ReaderError
-from cistern_archive.files import atomic_file
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.core.errors import ReaderError
+from cistern_archive.core.files import atomic_file
+from cistern_archive.core.scan import Scan
 
 SCHEMA = "cistern-archive/scan"
 SCHEMA_VERSION = 2

@@ -36,7 +36,7 @@ marina"); the measured conventions score 0.643, and
   :func:`cistern_archive.navigation.pipeline.estimate_clock_offset`).
 
 Every loader returns a :class:`NavTable` of named float64 columns sorted by time, and raises
-:class:`~cistern_archive.errors.ReaderError` naming the file and line of a malformed row.
+:class:`~cistern_archive.core.errors.ReaderError` naming the file and line of a malformed row.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 
 
 PCD_MIRRORED = True

@@ -72,7 +72,7 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
     (grazing) echo rather than behind its leading edge: it accepted leading edges decimetres before the
     wall on the beam's axis.
 
-Every method returns a :class:`~cistern_archive.sonar.scan.RangeScan`. The CFAR and shadow constants below
+Every method returns a :class:`~cistern_archive.core.scan.RangeScan`. The CFAR and shadow constants below
 were chosen on simulated scans whose seeds are not those of the bundled catalog, and reported on others;
 ``benchmarks/segmentation.py`` compares the three methods.
 """
@@ -83,7 +83,7 @@ from typing import Protocol
 
 import numpy as np
 
-from cistern_archive.sonar.scan import RangeScan, Scan
+from cistern_archive.core.scan import RangeScan, Scan
 
 PAPER_SCALE = 255
 CFAR_TRAIN = 8

@@ -34,7 +34,7 @@ from cistern_archive.catalog.models import (
     SonarSettings,
     TruthPose,
 )
-from cistern_archive.files import write_text_atomic
+from cistern_archive.core.files import write_text_atomic
 from cistern_archive.sonar.geometry import interpolate_slice, ray_cast
 from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.sonar.simulator import SimulatedSite, TruePose, station_rng

@@ -3,7 +3,7 @@
 The model of one stationary 360° scan (all levels in dB re an arbitrary source level):
 
 * **Beam**: the head steps ``step_deg`` clockwise (seen from above), so bearings in the sonar frame
-  (counter-clockwise, see :mod:`cistern_archive.sonar.scan`) decrease. Each beam is ``sub_rays`` x
+  (counter-clockwise, see :mod:`cistern_archive.core.scan`) decrease. Each beam is ``sub_rays`` x
   ``vertical_rays`` rays across Gaussian two-way patterns (the square of one-way patterns whose -3 dB
   widths are ``beam_width_deg`` horizontally and ``vertical_beam_width_deg`` vertically). A ray at elevation ``e``
   meets the wall at the horizontal distance ``h`` where the walls of the depth ``d + h tan e`` are
@@ -57,7 +57,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from cistern_archive.sonar.geometry import Slice, interpolate_slice, ray_cast
-from cistern_archive.sonar.scan import Scan, wrap_angle
+from cistern_archive.core.scan import Scan, wrap_angle
 from cistern_archive.sonar.simulator_spec import EffectsSpec, SimulationSpec, SonarSpec
 from cistern_archive.sonar.stations import TruePose, plan_route, station_poses, station_rng
 

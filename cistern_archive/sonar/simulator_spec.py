@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from cistern_archive.catalog.loader import parse_yaml, validation_problems
 from cistern_archive.catalog.models import Location, Segmentation
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.gallery import Recess, gallery_ring
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cistern_archive.sonar.geometry import contains, interpolate_slice, overlap_fraction
-from cistern_archive.sonar.scan import wrap_angle
+from cistern_archive.core.scan import wrap_angle
 from cistern_archive.sonar.simulator_spec import RouteSpec, SimulationSpec
 
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from cistern_archive.sonar.scan import Scan, wrap_angle
+from cistern_archive.core.scan import Scan, wrap_angle
 
 TWO_PI = 2.0 * math.pi
 
@@ -34,7 +34,7 @@ class Beam:
     Attributes
     ----------
     bearing_rad : float
-        Sonar-frame bearing (CCW from forward, see :mod:`cistern_archive.sonar.scan`).
+        Sonar-frame bearing (CCW from forward, see :mod:`cistern_archive.core.scan`).
     intensities : ndarray, shape (B,)
         Bin values in device units.
     timestamp : float

@@ -1,6 +1,6 @@
 """Simulated scan pairs with known truth, for conformance checks, tests and the matcher benchmark.
 
-A pair is two :class:`~cistern_archive.sonar.scan.RangeScan` taken at two stations of one simulated
+A pair is two :class:`~cistern_archive.core.scan.RangeScan` taken at two stations of one simulated
 site (or of two different sites, for pairs with no overlap), with the true displacement
 ``d = p_moving - p_reference`` and the true yaw correction of the moving scan's compass.
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_archive.testing.geometry import Environment, cast_rays, random_environment, visible_from
 
 

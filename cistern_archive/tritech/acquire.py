@@ -27,10 +27,10 @@ import yaml
 
 from cistern_archive.catalog.loader import LoadedRecord, load_record, record_paths
 from cistern_archive.catalog.models import SiteRecord, check_station
-from cistern_archive.errors import CatalogError, CisternError
-from cistern_archive.files import write_text_atomic
+from cistern_archive.core.errors import CatalogError, CisternError
+from cistern_archive.core.files import write_text_atomic
 from cistern_archive.sonar.interchange import write_scan
-from cistern_archive.sonar.scan import yaw_from_compass_deg
+from cistern_archive.core.scan import yaw_from_compass_deg
 from cistern_archive.tritech.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
 from cistern_archive.tritech.codec import STEPS_PER_REV
 from cistern_archive.tritech.messages import STEP_SIZES, HeadSettings

@@ -29,7 +29,7 @@ Public API
 * :func:`iter_packets` — decode a whole byte string.
 * :class:`HeadData`, :func:`decode_head_data`, :func:`encode_head_data` — ``mtHeadData`` (§9).
 * :func:`bearing_to_rad` — Tritech bearing steps to the sonar-frame convention of
-  :mod:`cistern_archive.sonar.scan`.
+  :mod:`cistern_archive.core.scan`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from cistern_archive.errors import CisternError
+from cistern_archive.core.errors import CisternError
 
 __all__ = [
     "ADINTERVAL_S",
@@ -504,7 +504,7 @@ def bearing_to_rad(steps: np.ndarray | int | float, *, ahead: int = 3200) -> np.
 
     Tritech counts 1/16 gradian steps (6400 per revolution) **clockwise** seen from above, with
     ``ahead`` (3200 by the SeaKing convention, §7.4 and §13) pointing forward. The sonar frame of
-    :mod:`cistern_archive.sonar.scan` is counter-clockwise from forward, so::
+    :mod:`cistern_archive.core.scan` is counter-clockwise from forward, so::
 
         theta = -(steps - ahead) * 2 pi / 6400,   wrapped to [-pi, pi)
 

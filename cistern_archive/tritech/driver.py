@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import serial
 
-from cistern_archive.errors import CisternError
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.core.errors import CisternError
+from cistern_archive.core.scan import Scan
 from cistern_archive.tritech.codec import (
     DEFAULT_SPEED_OF_SOUND,
     STEPS_PER_REV,
@@ -567,7 +567,7 @@ def collect_scan(driver: MicronDriver, *, station: str = "", depth_m: float = 0.
     driver : MicronDriver
         An open driver; started here unless ``start`` is false.
     station, depth_m, yaw_rad
-        Stored in the scan (yaw is the map-frame heading, see :mod:`cistern_archive.sonar.scan`).
+        Stored in the scan (yaw is the map-frame heading, see :mod:`cistern_archive.core.scan`).
     max_revolutions : float
         Give up filling gaps after this many revolutions' worth of lines; the scan is then partial.
     accept_missing : int

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import CatalogError
+from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.geometry import Slice, interpolate_slice
 from cistern_archive.sonar.simulator import TruePose, simulate_scan, station_poses
 from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec, load_spec

@@ -1,7 +1,7 @@
 """Readers of recorded sonar files, registered by format name.
 
 ``read_scans(path, fmt=None)`` returns every 360° scan (or sector sweep) of a file as a list of
-:class:`~cistern_archive.sonar.scan.Scan`. A reader never modifies its input file.
+:class:`~cistern_archive.core.scan.Scan`. A reader never modifies its input file.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cistern_archive.errors import ReaderError
-from cistern_archive.sonar.scan import Scan
+from cistern_archive.core.errors import ReaderError
+from cistern_archive.core.scan import Scan
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.interchange import check_npz, read_scan
 from cistern_archive.sonar.readers import ReadResult, register_reader
 

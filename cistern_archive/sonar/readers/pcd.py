@@ -2,7 +2,7 @@
 
 Each file is one thresholded 2-D point cloud per 360° revolution of the marina's Miniking sonar
 (200 beams of 1.8°, 0.1 m bins, 50 m range, ``_SETUP.log``), in the sonar frame (x forward, y left,
-metres). The reader turns it back into a :class:`~cistern_archive.sonar.scan.Scan` grid:
+metres). The reader turns it back into a :class:`~cistern_archive.core.scan.Scan` grid:
 
 * the cloud is mirrored (y to starboard); row ``j`` of the grid is the ``j``-th beam of the revolution
   in acquisition order, at ``+j * 1.8°`` counter-clockwise in the sonar frame, and its bearing in the
@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar import marina
 from cistern_archive.sonar.readers import ReadResult, header_check, read_bytes, register_reader
-from cistern_archive.sonar.scan import Scan, yaw_from_compass_deg
+from cistern_archive.core.scan import Scan, yaw_from_compass_deg
 
 BEAMS = 200
 STEP_RAD = 2.0 * math.pi / BEAMS

@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.readers import ReadResult, read_bytes, register_reader
-from cistern_archive.sonar.scan import wrap_angle
+from cistern_archive.core.scan import wrap_angle
 from cistern_archive.sonar.sweeps import Beam, ScanTemplate, beams_to_scans
 
 MAGIC = "PingViewer sensor log file"

@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.errors import ReaderError
+from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.readers import ReadResult, header_check, read_bytes, register_reader
-from cistern_archive.sonar.scan import yaw_from_compass_deg
+from cistern_archive.core.scan import yaw_from_compass_deg
 from cistern_archive.sonar.sweeps import Beam, ScanTemplate, beams_to_scans
 from cistern_archive.tritech.codec import (
     DEFAULT_SPEED_OF_SOUND,

@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from pydantic import Field
 
 from cistern_archive.pipeline.contracts import StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 def scan_points(scan: RangeScan) -> np.ndarray:

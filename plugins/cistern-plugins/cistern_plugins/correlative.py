@@ -38,7 +38,7 @@ from pydantic import Field
 from scipy import ndimage
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.alignment import (
     ConvergenceParams,
     FreeSpace,

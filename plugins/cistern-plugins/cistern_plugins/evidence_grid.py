@@ -22,7 +22,7 @@ from pydantic import Field
 from cistern_archive.grid.evidence import SonarModel, scan_window
 from cistern_archive.grid.tiles import TiledGrid
 from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 class GridParams(StageParams):

@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """``nav-graph``: a pose graph for surveys with navigation — odometry, compass, scan matches, calibration.
 
-For scans taken from a moving vehicle (each :class:`~cistern_archive.sonar.scan.RangeScan` carries its
+For scans taken from a moving vehicle (each :class:`~cistern_archive.core.scan.RangeScan` carries its
 dead-reckoned ``odometry`` pose and ``time_s``; :func:`cistern_archive.navigation.motion.compensated_range_scan`),
 GTSAM solves for one ``Pose2`` per scan, ``X_k = (x_k, y_k, theta_k)`` in the map frame, and the
 calibration variables: the DVL scale ``s`` and the compass deviation
@@ -45,7 +45,7 @@ from pydantic import Field
 
 from cistern_archive.navigation.track import OdometryNoise, relative_covariance, se2_between
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
-from cistern_archive.sonar.scan import RangeScan, wrap_angle
+from cistern_archive.core.scan import RangeScan, wrap_angle
 
 SCALE_KEY = gtsam.symbol("s", 0)
 OFFSET_KEY = gtsam.symbol("d", 0)

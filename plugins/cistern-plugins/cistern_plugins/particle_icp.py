@@ -37,7 +37,7 @@ import numpy as np
 from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.verification import judge, match_confidence
 from cistern_plugins.alignment import (
     ConvergenceParams,

@@ -129,7 +129,7 @@ from pydantic import Field
 from cistern_archive.grid.evidence import DenseMap, SonarModel, dense_scan_map
 from cistern_archive.grid.raycast import FAR_M, OccupancyLookup
 from cistern_archive.pipeline.contracts import MatchGuess, MatchHistory, MatchResult, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.alignment import ConvergenceParams, ReferenceModel, scan_points, transform, verdict
 from cistern_plugins.icp import fit_covariance, refine_point_to_line
 

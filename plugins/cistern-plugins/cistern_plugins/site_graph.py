@@ -51,7 +51,7 @@ import numpy as np
 from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, wrap
 from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.wls import vertical_ties

@@ -19,7 +19,7 @@ from pydantic import Field
 from scipy import ndimage
 
 from cistern_archive.pipeline.contracts import MatchResult, StageParams
-from cistern_archive.sonar.scan import RangeScan
+from cistern_archive.core.scan import RangeScan
 
 
 class GridSearchParams(StageParams):

@@ -1,8 +1,8 @@
-"""The evidence grid of one depth slice: the mapper's output and the grid layer's input."""
+"""What a mapper returns: log-odds evidence grids, one per depth slice."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -46,3 +46,11 @@ class EvidenceGrid:
         h, w = self.log_odds.shape
         x0, y0 = self.origin_xy_m
         return (x0, x0 + w * self.cell_m, y0, y0 + h * self.cell_m)
+
+
+@dataclass(frozen=True, eq=False)
+class MapResult:
+    """The mapper's output: one evidence grid per depth slice, shallowest first."""
+
+    grids: tuple[EvidenceGrid, ...]
+    stats: dict[str, float] = field(default_factory=dict)

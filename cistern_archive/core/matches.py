@@ -1,0 +1,122 @@
+"""What a pair-wise scan matcher returns: the estimate of one directed pair, its search window and
+its diagnostics (the matcher stage's output types)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class MatchHistory:
+    """Per-iteration diagnostics of an iterative matcher (for the report's convergence figures).
+
+    Attributes
+    ----------
+    weight_avg : ndarray, shape (T,)
+        Exponential average of the particle weights after each iteration (eq. 6's left side).
+    std_avg : ndarray, shape (T,)
+        Exponential average of the particle position std after each iteration (eq. 5's left side).
+    snapshots : tuple of ndarray
+        A few particle sets, each (K, 4): x, y, theta, weight.
+    snapshot_iterations : tuple of int
+        The iteration each snapshot was taken at.
+    """
+
+    weight_avg: np.ndarray
+    std_avg: np.ndarray
+    snapshots: tuple[np.ndarray, ...] = ()
+    snapshot_iterations: tuple[int, ...] = ()
+
+
+
+@dataclass(frozen=True)
+class MatchGuess:
+    """Where a localizer expects scan ``j`` relative to scan ``i``, from the matches it already has.
+
+    A matcher that accepts a ``guess`` searches the square ``±radius_m`` around ``(dx_m, dy_m)`` and the
+    heading correction around ``dyaw_rad`` instead of its own wide window: the search window around an
+    odometry estimate that SLAM systems use to match scans beyond neighbours (loop closures), here with
+    the chain of neighbour matches as the odometry.
+
+    Attributes
+    ----------
+    dx_m, dy_m, dyaw_rad : float
+        Expected ``p_j - p_i`` (in scan i's compass frame) and heading correction of scan j.
+    radius_m : float
+        Half the side of the square to search.
+    """
+
+    dx_m: float
+    dy_m: float
+    dyaw_rad: float
+    radius_m: float
+
+
+
+@dataclass(frozen=True, eq=False)
+class MatchResult:
+    """The estimate of one directed pair: scan ``j`` located in scan ``i``'s map.
+
+    Attributes
+    ----------
+    i, j : int
+        Indices of the reference and the moving scan in the site's scan list.
+    dx_m, dy_m : float
+        ``p_j - p_i`` in the map frame.
+    dyaw_rad : float
+        Correction to scan j's yaw relative to scan i (0 when the compass is trusted).
+    weight : float
+        The converged weight ``w_mu`` (eq. 6) or the matcher's own score; larger is better.
+    converged : bool
+        Whether the matcher vouches for this estimate.
+    iterations : int
+        Iterations used.
+    seconds : float
+        Wall time of the match.
+    reason : str
+        Why it did not converge (empty when it did).
+    covariance : ndarray or None, shape (3, 3)
+        Uncertainty of (dx, dy, dyaw) when the matcher estimates it.
+    history : MatchHistory or None
+        Diagnostics for the report.
+    guess : MatchGuess or None
+        The window the matcher was asked to search (set by the runner; ``None`` for a global search).
+    tentative : bool
+        For a pair that did not converge: the estimate is still the matcher's best, refused only because
+        it is not unique or not constrained enough on its own (a rival peak nearly as good, a corridor
+        that leaves one direction weak). A localizer may use it where converged matches corroborate it
+        (closing a consistent cycle with them), never alone.
+    confidence : float or None
+        The matcher's calibrated probability that a converged estimate is right (within the accuracy
+        its verification is calibrated for), when it estimates one; localizers order and weigh
+        matches by it.
+    """
+
+    i: int
+    j: int
+    dx_m: float
+    dy_m: float
+    dyaw_rad: float
+    weight: float
+    converged: bool
+    iterations: int
+    seconds: float
+    reason: str = ""
+    covariance: np.ndarray | None = None
+    history: MatchHistory | None = None
+    guess: MatchGuess | None = None
+    confidence: float | None = None
+    tentative: bool = False
+
+    @property
+    def translation(self) -> np.ndarray:
+        return np.array([self.dx_m, self.dy_m])
+
+    @classmethod
+    def no_estimate(cls, reason: str, *, seconds: float, weight: float = 0.0) -> "MatchResult":
+        """A pair the matcher could not estimate at all: not converged, NaN displacement, ``reason``."""
+        nan = float("nan")
+        return cls(i=-1, j=-1, dx_m=nan, dy_m=nan, dyaw_rad=nan, weight=weight, converged=False, iterations=0,
+                   seconds=seconds, reason=reason)
