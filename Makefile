@@ -23,7 +23,9 @@ demo: $(STAMP)
 	$(BIN)/cistern-archive rebuild --catalog $(CATALOG) --out $(OUT) --archive $(ARCHIVE) --workers $(WORKERS) \
 		|| [ $$? -eq 1 ]
 
+# lint-imports: the layers contract in pyproject.toml (a module imports only from layers below it).
 test: $(STAMP)
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m pytest -m "not slow" -q
 
 # pytest exits 5 when no test is marked slow; that is not a failure.

@@ -1,8 +1,8 @@
 """Fit the calibrated match verification (``plugins/cistern_plugins/verification.json``).
 
 Draws simulated pairs on a tuning seed — pairs of random rooms and galleries
-(:mod:`cistern_archive.testing.pairs`, with both of its sonar models) and every pair up to three stations apart in random
-multi-chamber cisterns (:mod:`cistern_archive.testing.chambers`), all through the physical sonar
+(:mod:`cistern_archive.simulation.pairs`, with both of its sonar models) and every pair up to three stations apart in random
+multi-chamber cisterns (:mod:`cistern_archive.simulation.chambers`), all through the physical sonar
 simulator and the pipeline's segmentation — runs the point matchers with every verification limit off
 (so each reports the pose its search found), labels each pose against the truth — correct: within
 0.10 m and 2°; wrong: more than 0.15 m or 3° off, or the two scans are of different sites; poses in
@@ -28,7 +28,7 @@ import numpy as np
 from cistern_archive.evaluation import in_compass_frame, wilson_interval
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import match_pair
-from cistern_archive.testing.pairs import PairSpec, SimulatedPair, simulated_pair
+from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_plugins.alignment import ReferenceModel
 from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, features
 
@@ -53,11 +53,11 @@ def draw_pairs(n: int, seed: int, segmentation: str | None) -> list[SimulatedPai
 
 def site_pairs(n_sites: int, seed: int, max_gap: int = 3) -> list[SimulatedPair]:
     """Every ordered pair up to ``max_gap`` stations apart in ``n_sites`` random multi-chamber cisterns
-    (:mod:`cistern_archive.testing.chambers`): scans that look through tunnels and openings into the
+    (:mod:`cistern_archive.simulation.chambers`): scans that look through tunnels and openings into the
     next chamber, as the pipeline meets them, segmented as the records' default does."""
     from cistern_archive.sonar.segmentation import segment
-    from cistern_archive.sonar.simulator import simulate_site
-    from cistern_archive.testing.chambers import random_cisterns
+    from cistern_archive.simulation.simulator import simulate_site
+    from cistern_archive.simulation.chambers import random_cisterns
 
     out = []
     for cistern in random_cisterns(n_sites, seed):

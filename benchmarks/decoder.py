@@ -5,7 +5,7 @@ each) with an mtAlive every 25 lines, optionally with random garbage bursts betw
 (``--garbage``, the fraction of packets preceded by 1..64 random bytes). It is fed to
 :class:`cistern_archive.tritech.codec.StreamDecoder` in chunks of ``--chunk`` bytes (a serial read), and
 every packet is turned into its typed message (:func:`cistern_archive.tritech.messages.decode_message`),
-exactly as :class:`cistern_archive.tritech.driver.MicronDriver` does. The line rate of 115200 baud 8N1 is
+exactly as :class:`cistern_archive.acquisition.driver.MicronDriver` does. The line rate of 115200 baud 8N1 is
 11,520 bytes/s; the target is at least 10x that.
 
 Usage::
@@ -61,9 +61,9 @@ def link_rate(n_bins: int) -> dict:
     This bounds the whole live path (pty, pyserial, decoding, request/reply turn-arounds); the emulator
     runs in the same process, so the figure is a lower bound of the driver's own speed.
     """
-    from cistern_archive.sonar.simulator_spec import EffectsSpec
-    from cistern_archive.tritech.driver import DriverConfig, MicronDriver, collect_scan
-    from cistern_archive.tritech.emulator import HeadTiming, SimulatedEcho, build_emulator
+    from cistern_archive.simulation.spec import EffectsSpec
+    from cistern_archive.acquisition.driver import DriverConfig, MicronDriver, collect_scan
+    from cistern_archive.acquisition.emulator import HeadTiming, SimulatedEcho, build_emulator
 
     room = np.array([[0.0, 0.0], [12.0, 0.0], [12.0, 8.0], [0.0, 8.0]])
     echo = SimulatedEcho.from_polygon(room, x_m=4.0, y_m=3.0, effects=EffectsSpec.ideal())

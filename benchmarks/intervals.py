@@ -2,7 +2,7 @@
 
 Every truth dimension (tape-measure references of simulated sites, whose values are the simulator's
 geometry) of the bundled demo catalog and of ``--synthetic N`` generated rectangular cisterns
-(:func:`cistern_archive.service.synthetic.write_synthetic_catalog`, seeded) is built through the
+(:func:`cistern_archive.simulation.synthetic.write_synthetic_catalog`, seeded) is built through the
 pipeline; a dimension is covered when ``|map_m − reference_m| ≤ ci95_m``
 (:mod:`cistern_archive.pipeline.intervals`). Unmeasured dimensions are counted apart.
 
@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
-from cistern_archive.service.synthetic import write_synthetic_catalog  # noqa: E402
+from cistern_archive.simulation.synthetic import write_synthetic_catalog  # noqa: E402
 
 
 def truth_dimensions(catalog: Path) -> list[dict]:

@@ -1,6 +1,6 @@
 """Every installed matcher on the same simulated pairs, side by side.
 
-Pairs come from :mod:`cistern_archive.testing.pairs`: random cistern rooms (with pillars) and winding
+Pairs come from :mod:`cistern_archive.simulation.pairs`: random cistern rooms (with pillars) and winding
 galleries (with niches), 200-beam 360° sweeps, range 2.5–8 m, compass error up to 20°. With
 ``--sonar rays`` (default) the ranges are ideal rays with range noise 2/5/10 cm, 5 % multipath
 outliers and 5 % drop-outs; with ``--sonar simulator`` the scans come from the project's physical sonar
@@ -70,7 +70,7 @@ from cistern_archive.core.errors import PluginError
 from cistern_archive.evaluation import strict_json, wilson_interval
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.pf_pairwise import PAPER_CONFIGURATION
-from cistern_archive.testing.pairs import PairSpec, SimulatedPair, simulated_pair
+from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import score
 
 OVERLAPS = {"20_30": (0.2, 0.3), "30_50": (0.3, 0.5), "50_70": (0.5, 0.7), "70_90": (0.7, 0.9)}
@@ -419,9 +419,9 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str, loc_overrides: dic
     """Median position error of ``wls`` and ``pose-graph`` on ``n`` random ray-cast galleries, in the
     reference scan's frame and after rigid alignment."""
     from cistern_archive.evaluation import reference_frame_errors
-    from cistern_archive.testing.geometry import random_gallery, stations_along
+    from cistern_archive.simulation.rays import random_gallery, stations_along
     from cistern_archive.pipeline.runner import match_pair, match_rounds
-    from cistern_archive.testing.pairs import simulate_range_scan
+    from cistern_archive.simulation.pairs import simulate_range_scan
 
     rng = np.random.default_rng(seed)
     reg = default_registry()

@@ -37,7 +37,7 @@ from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E4
 from cistern_archive.evaluation import align_rigid_2d  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
 from cistern_archive.sonar.geometry import contains, edges_of, interpolate_slice  # noqa: E402
-from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
+from cistern_archive.simulation.spec import load_spec  # noqa: E402
 
 
 def distance_to_rings(points: np.ndarray, rings) -> np.ndarray:

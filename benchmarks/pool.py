@@ -35,9 +35,9 @@ from cistern_archive.catalog.loader import load_record  # noqa: E402
 from cistern_archive.evaluation import in_compass_frame  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
-from cistern_archive.sonar.simulation_output import write_site  # noqa: E402
-from cistern_archive.sonar.simulator import simulate_site  # noqa: E402
-from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
+from cistern_archive.simulation.output import write_site  # noqa: E402
+from cistern_archive.simulation.simulator import simulate_site  # noqa: E402
+from cistern_archive.simulation.spec import load_spec  # noqa: E402
 
 PAPER = {
     "width_error_m": 3.47 - 3.61,

@@ -70,9 +70,9 @@ def fixity_cost(n_sites: int, work: Path) -> dict:
     import time
 
     from cistern_archive.archive import Archive
-    from cistern_archive.catalog.validate import validate_catalog
+    from cistern_archive.pipeline.validate import validate_catalog
     from cistern_archive.service.rebuild import site_inputs
-    from cistern_archive.service.synthetic import write_synthetic_catalog
+    from cistern_archive.simulation.synthetic import write_synthetic_catalog
 
     catalog = work / "catalog"
     write_synthetic_catalog(catalog, n_sites, seed=2024)

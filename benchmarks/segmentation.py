@@ -1,7 +1,7 @@
 """Beam segmentation: the paper's rule (Sec. III-B), the CFAR rule and the shadow rule, on simulated sites
 with truth and on real recordings without it.
 
-Simulated sites (the physical simulator, :mod:`cistern_archive.sonar.simulator`: reverberation through the
+Simulated sites (the physical simulator, :mod:`cistern_archive.simulation.simulator`: reverberation through the
 35° vertical lobe, multipath ghosts, speckle, spikes, ring-down and the vehicle's own echo), three families
 and the bell-shaped cistern apart:
 
@@ -86,8 +86,8 @@ TUNE_GRID = {"SHADOW_LEAD_MARGIN": [10.0, 20.0, 35.0], "SHADOW_MARGIN": [50.0, 6
 from cistern_archive.catalog.models import Segmentation  # noqa: E402
 from cistern_archive.sonar import segmentation as seg  # noqa: E402
 from cistern_archive.sonar.fan import polar_to_cartesian  # noqa: E402
-from cistern_archive.sonar.simulator import simulate_site  # noqa: E402
-from cistern_archive.sonar.simulator_spec import SimulationSpec, load_spec  # noqa: E402
+from cistern_archive.simulation.simulator import simulate_site  # noqa: E402
+from cistern_archive.simulation.spec import SimulationSpec, load_spec  # noqa: E402
 
 METHODS = seg.METHODS
 

@@ -57,7 +57,7 @@ def _timed_rebuild(catalog: Path, out: Path, archive: Path, *, workers: int, rep
 def _warm_up(catalog: Path, archive: Path) -> None:
     """Archive every input once, so that neither timed run pays for the first copy into the archive."""
     from cistern_archive.archive import Archive
-    from cistern_archive.catalog.validate import validate_catalog
+    from cistern_archive.pipeline.validate import validate_catalog
     from cistern_archive.pipeline.registry import default_registry
     from cistern_archive.service.rebuild import plan_site
 
@@ -75,7 +75,7 @@ def _fresh_code_version() -> str:
 
 
 def run(n_sites: int, report_mode: str, workdir: Path) -> dict:
-    from cistern_archive.service.synthetic import write_synthetic_catalog
+    from cistern_archive.simulation.synthetic import write_synthetic_catalog
 
     report = LIGHT_REPORT if report_mode == "light" else None
     catalog, archive = workdir / "catalog", workdir / "archive"

@@ -3,7 +3,7 @@
 Two sources of sites:
 
 * the demo catalog (default): every record in ``catalog/sites/*.yaml`` that has ``truth`` poses;
-* ``--random N --seed S``: N random multi-chamber cisterns of :mod:`cistern_archive.testing.chambers`
+* ``--random N --seed S``: N random multi-chamber cisterns of :mod:`cistern_archive.simulation.chambers`
   (one to three chambers of 2.5–8 m joined by 0.8–1.2 m tunnels, 6–12 stations, Micron-like echoes,
   ±2° compass bias and 2° noise), written as a temporary catalog (specs, then scans, ``truth.json`` and
   records by the simulator's writer, as ``cistern-archive simulate`` does) and built from there.
@@ -78,7 +78,7 @@ from cistern_archive.evaluation import reference_frame_errors, strict_json, wils
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site, match_pair, resolve_stages  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  # noqa: E402
-from cistern_archive.sonar.simulator_spec import load_spec  # noqa: E402
+from cistern_archive.simulation.spec import load_spec  # noqa: E402
 
 
 def with_localizer(loaded, localizer: tuple[str | None, dict] | None):
@@ -326,7 +326,7 @@ def demo_main(args) -> int:
 
 def _random_site(job: tuple[Path, Path, str | None, int]) -> dict:
     """Simulate one random site into the temporary catalog, build it and score it (one worker's job)."""
-    from cistern_archive.testing.chambers import simulate_into
+    from cistern_archive.simulation.chambers import simulate_into
 
     spec_path, catalog, localizer, far_limit = job
     start = time.perf_counter()
@@ -338,7 +338,7 @@ def _random_site(job: tuple[Path, Path, str | None, int]) -> dict:
 
 
 def random_main(args) -> int:
-    from cistern_archive.testing.chambers import random_cisterns, write_specs
+    from cistern_archive.simulation.chambers import random_cisterns, write_specs
 
     cisterns = random_cisterns(args.random, args.seed)
     chambers = {c.spec.id: c.chambers for c in cisterns}

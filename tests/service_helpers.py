@@ -17,7 +17,7 @@ FAST_REPORT = {"model": False, "pdf": False, "max_pair_figures": 0, "max_fan_fig
 
 def make_catalog(root: Path, n_sites: int = 2, *, seed: int = 7) -> Path:
     """A catalog of ``n_sites`` simulated two-station cisterns under ``root``."""
-    from cistern_archive.service.synthetic import write_synthetic_catalog
+    from cistern_archive.simulation.synthetic import write_synthetic_catalog
 
     write_synthetic_catalog(root, n_sites, seed=seed, stations=2)
     return root

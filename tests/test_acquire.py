@@ -10,15 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cistern_archive.archive import catalog_store
 from cistern_archive.catalog.loader import load_record
 from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.interchange import read_scan
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.core.scan import compass_deg_from_yaw
-from cistern_archive.tritech.acquire import acquire_scan, insert_scan_text
+from cistern_archive.acquisition.session import acquire_scan, insert_scan_text
 from cistern_archive.tritech.codec import iter_packets
-from cistern_archive.tritech.driver import DriverConfig
-from cistern_archive.tritech.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
+from cistern_archive.acquisition.driver import DriverConfig
+from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
 from tritech_helpers import make_catalog, tiny_catalog  # noqa: F401  (fixture)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -47,7 +48,7 @@ def test_acquire_writes_raw_scan_record_and_archive(tiny_catalog, tmp_path):
     record_text = record_path.read_text()
     with build_emulator(echo, timing=FAST) as server:
         result = acquire_scan(tiny_catalog, server.url, "pool", "b", depth_m=1.0, heading_deg=heading_of(echo),
-                              config=CONFIG, archive_dir=tmp_path / "archive")
+                              config=CONFIG, store=catalog_store(tiny_catalog, tmp_path / "archive"))
     assert result.capture.complete and result.station == "b" and not result.partial
     # 1. raw stream: every byte as received, decodable.
     raw = result.raw_path.read_bytes()
@@ -110,7 +111,7 @@ def test_interrupted_scan_is_kept_as_partial(tiny_catalog, tmp_path, how):
 
     try:
         result = acquire_scan(tiny_catalog, server.url, "pool", "b", depth_m=1.0, heading_deg=10.0,
-                              config=CONFIG, archive_dir=tmp_path / "archive", on_line=cut)
+                              config=CONFIG, store=catalog_store(tiny_catalog, tmp_path / "archive"), on_line=cut)
     finally:
         server.stop()
     assert result.partial and result.station == "b-partial"
@@ -133,7 +134,7 @@ def test_interrupted_scan_is_kept_as_partial(tiny_catalog, tmp_path, how):
 def test_no_head_changes_nothing(tiny_catalog):
     record_before = (tiny_catalog / "sites" / "pool.yaml").read_bytes()
     result = acquire_scan(tiny_catalog, "/dev/does-not-exist", "pool", "b", depth_m=1.0, heading_deg=0.0,
-                          config=CONFIG, use_archive=False)
+                          config=CONFIG)
     assert result.capture.scan is None and result.scan_path is None and result.record_path is None
     assert "cannot open the port" in result.capture.error
     assert (tiny_catalog / "sites" / "pool.yaml").read_bytes() == record_before
@@ -146,7 +147,7 @@ def test_second_session_never_overwrites_a_raw_capture(tiny_catalog):
     echo = station_b(tiny_catalog)
     with build_emulator(echo, timing=FAST) as server:
         result = acquire_scan(tiny_catalog, server.url, "pool", "b", depth_m=1.0, heading_deg=0.0,
-                              config=CONFIG, use_archive=False)
+                              config=CONFIG)
     assert result.raw_path.name == "b-2.seanet" and raw.read_bytes() == b"earlier capture"
     assert read_scan(result.scan_path).settings["raw_file"] == "data/pool/b-2.seanet"
 
@@ -183,7 +184,7 @@ def test_acquired_scan_builds_into_the_site_report(tmp_path):
     echo = SimulatedEcho.from_catalog(catalog, "lair-pool", "s2")
     with build_emulator(echo, timing=FAST) as server:
         result = acquire_scan(catalog, server.url, "lair-pool", "s2", depth_m=echo.pose.depth_m,
-                              heading_deg=heading_of(echo), config=CONFIG, use_archive=False)
+                              heading_deg=heading_of(echo), config=CONFIG)
     assert result.capture.complete
     build = build_site(load_record(catalog / "sites" / "lair-pool.yaml", catalog))
     assert build.result.status == "ok", build.result.failure

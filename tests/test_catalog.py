@@ -12,7 +12,7 @@ from catalog_helpers import RECORD, write_catalog
 from cistern_archive.catalog.loader import load_record
 from cistern_archive.catalog.models import SiteRecord
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.catalog.validate import validate_catalog
+from cistern_archive.pipeline.validate import validate_catalog
 from cistern_archive.core.errors import CatalogError
 
 

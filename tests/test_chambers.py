@@ -1,4 +1,4 @@
-"""The random multi-chamber cisterns (cistern_archive.testing.chambers) and the Wilson interval."""
+"""The random multi-chamber cisterns (cistern_archive.simulation.chambers) and the Wilson interval."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import pytest
 
 from cistern_archive.evaluation import wilson_interval
 from cistern_archive.sonar.geometry import contains, ray_cast
-from cistern_archive.sonar.simulator import station_poses
-from cistern_archive.sonar.simulator_spec import SimulationSpec, load_spec
-from cistern_archive.testing.chambers import (
+from cistern_archive.simulation.simulator import station_poses
+from cistern_archive.simulation.spec import SimulationSpec, load_spec
+from cistern_archive.simulation.chambers import (
     ROOM_M,
     STATIONS,
     TUNNEL_WIDTH_M,

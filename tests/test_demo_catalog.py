@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from cistern_archive.catalog.loader import load_record
-from cistern_archive.catalog.validate import validate_catalog
+from cistern_archive.pipeline.validate import validate_catalog
 from cistern_archive.sonar.geometry import overlap_fraction
 from cistern_archive.sonar.interchange import read_scan
 from cistern_archive.sonar.segmentation import segment
-from cistern_archive.sonar.simulation_output import write_site
-from cistern_archive.sonar.simulator import simulate_site
-from cistern_archive.sonar.simulator_spec import load_spec
+from cistern_archive.simulation.output import write_site
+from cistern_archive.simulation.simulator import simulate_site
+from cistern_archive.simulation.spec import load_spec
 
 CATALOG = Path(__file__).resolve().parents[1] / "catalog"
 SITES = ["bell-cistern", "gatto-pardo", "lair-pool", "mdina-site-8", "three-chambers", "water-gallery"]

@@ -13,16 +13,16 @@ import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cistern_archive.sonar.simulator_spec import EffectsSpec
+from cistern_archive.simulation.spec import EffectsSpec
 from cistern_archive.tritech.codec import encode_head_data, rad_to_bearing
-from cistern_archive.tritech.driver import (
+from cistern_archive.acquisition.driver import (
     DriverConfig,
     LinkError,
     MicronDriver,
     ScanAssembler,
     collect_scan,
 )
-from cistern_archive.tritech.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
+from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
 from cistern_archive.tritech.messages import Alive, BBUserData, HeadInf, HeadSettings, VersionData, head_data_for
 
 ROOM = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]])

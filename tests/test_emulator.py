@@ -17,9 +17,9 @@ import serial
 
 from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.geometry import ray_cast
-from cistern_archive.sonar.simulator_spec import EffectsSpec
+from cistern_archive.simulation.spec import EffectsSpec
 from cistern_archive.tritech.codec import MessageType, StreamDecoder, decode_head_data, iter_packets
-from cistern_archive.tritech.emulator import (
+from cistern_archive.acquisition.emulator import (
     EmulatedHead,
     FaultInjector,
     FaultPlan,

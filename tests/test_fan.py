@@ -12,8 +12,8 @@ from cistern_archive.catalog.models import Segmentation
 from cistern_archive.sonar.fan import display_levels, fan_png, polar_to_cartesian
 from cistern_archive.core.scan import Scan
 from cistern_archive.sonar.segmentation import segment, segment_intensities
-from cistern_archive.sonar.simulator import TruePose, simulate_scan
-from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec
+from cistern_archive.simulation.simulator import TruePose, simulate_scan
+from cistern_archive.simulation.spec import EffectsSpec, SonarSpec
 
 BOX = [np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 3.0], [0.0, 3.0]])]
 

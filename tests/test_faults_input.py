@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from catalog_helpers import RECORD, ring_scan, write_catalog
 from cistern_archive.catalog.loader import load_record
-from cistern_archive.catalog.validate import validate_catalog
+from cistern_archive.pipeline.validate import validate_catalog
 from cistern_archive.core.errors import CatalogError, ReaderError
 from cistern_archive.sonar.interchange import read_scan, write_scan
 from fault_helpers import digest_tree, guard, one_line_error, run_cli  # noqa: F401  (guard is a fixture)

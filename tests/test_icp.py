@@ -39,8 +39,8 @@ def test_params_refuse_unknown_keys():
 
 def test_corridor_is_reported_degenerate():
     """Two scans of a straight featureless corridor: the along-axis shift is unobservable."""
-    from cistern_archive.testing.geometry import Environment
-    from cistern_archive.testing.pairs import simulate_range_scan
+    from cistern_archive.simulation.rays import Environment
+    from cistern_archive.simulation.pairs import simulate_range_scan
 
     walls = np.array([[-50.0, -1.0, 50.0, -1.0], [-50.0, 1.0, 50.0, 1.0]])
     env = Environment(walls, "gallery", np.zeros((0, 2)))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.catalog.validate import validate_catalog, validate_record
+from cistern_archive.pipeline.validate import validate_catalog, validate_record
 from cistern_archive.evaluation import align_rigid_2d, position_errors
 from cistern_archive.pipeline.runner import build_site, write_site_result
 

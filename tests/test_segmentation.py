@@ -10,8 +10,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from cistern_archive.catalog.models import Segmentation
 from cistern_archive.core.scan import Scan
-from cistern_archive.sonar.simulator import TruePose, simulate_scan
-from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec
+from cistern_archive.simulation.simulator import TruePose, simulate_scan
+from cistern_archive.simulation.spec import EffectsSpec, SonarSpec
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.segmentation import (
     METHODS,

@@ -11,9 +11,9 @@ import pytest
 from cistern_archive.catalog.models import Segmentation
 from cistern_archive.sonar.geometry import contains, interpolate_slice, overlap_fraction, ray_cast
 from cistern_archive.sonar.segmentation import segment
-from cistern_archive.sonar.simulation_output import probe_lengths
-from cistern_archive.sonar.simulator import TruePose, beam_bearings, simulate_scan, simulate_site
-from cistern_archive.sonar.simulator_spec import (
+from cistern_archive.simulation.output import probe_lengths
+from cistern_archive.simulation.simulator import TruePose, beam_bearings, simulate_scan, simulate_site
+from cistern_archive.simulation.spec import (
     EffectsSpec,
     LevelSpec,
     RingSpec,
@@ -150,7 +150,7 @@ def test_probe_lengths_of_a_rectangle():
 
 
 def test_vertical_lobe_on_a_vertical_wall_gives_slant_range():
-    from cistern_archive.sonar.simulator import lobe_hits
+    from cistern_archive.simulation.simulator import lobe_hits
 
     angles = np.array([0.0, math.pi / 2])
     slant, cos_inc = lobe_hits(BOX, None, np.array([2.0, 1.0]), angles, 1.0, math.radians(10.0), None)
@@ -162,7 +162,7 @@ def test_vertical_lobe_on_a_vertical_wall_gives_slant_range():
 
 
 def test_sloping_walls_are_found_at_the_depth_the_ray_reaches():
-    from cistern_archive.sonar.simulator import lobe_hits
+    from cistern_archive.simulation.simulator import lobe_hits
 
     narrow = [np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])]
     wide = [np.array([[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]])]

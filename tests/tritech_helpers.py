@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from cistern_archive.sonar.simulation_output import write_site
-from cistern_archive.sonar.simulator import simulate_site
-from cistern_archive.sonar.simulator_spec import load_spec
+from cistern_archive.simulation.output import write_site
+from cistern_archive.simulation.simulator import simulate_site
+from cistern_archive.simulation.spec import load_spec
 
 SPEC = """\
 # A 6 m x 4 m pool with three stations (a tiny stand-in for the LAIR pool).

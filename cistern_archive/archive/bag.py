@@ -56,7 +56,7 @@ def bagging_date(built_at: str | None) -> str:
 
 
 def _find_record(catalog: Path, site_id: str, registry):
-    from cistern_archive.catalog.validate import validate_catalog
+    from cistern_archive.pipeline.validate import validate_catalog
 
     report = validate_catalog(catalog, registry)
     for loaded in report.records:

@@ -15,6 +15,7 @@ indexing it are therefore one recoverable step.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -176,3 +177,35 @@ class Archive:
                                                                       "index row"})
             healed.append(f"indexed object {sha256} (in the store without its index row)")
         return healed
+
+
+def catalog_store(catalog: str | os.PathLike, archive_dir: str | os.PathLike | None = None
+                  ) -> Callable[[str, list[tuple[Path, str]]], list[str]]:
+    """A function that ingests a site's new catalog files into the archive (acquisition's ``store``).
+
+    Parameters
+    ----------
+    catalog : path
+        The catalog root the files are in (their archive paths are relative to it).
+    archive_dir : path, optional
+        The archive (default: :func:`default_archive_dir` of the catalog).
+
+    Returns
+    -------
+    callable
+        ``store(site_id, [(path, role), ...])`` returning the catalog-relative paths it ingested.
+    """
+    root = Path(catalog)
+    where = Path(archive_dir) if archive_dir is not None else default_archive_dir(root)
+
+    def store(site_id: str, files: list[tuple[Path, str]]) -> list[str]:
+        done: list[str] = []
+        with Archive(where) as archive:
+            for path, role in files:
+                relative = path.resolve().relative_to(root.resolve()).as_posix()
+                archive.ingest(path, site_id=site_id, role=role, relative_path=relative)
+                done.append(relative)
+        return done
+
+    return store
+

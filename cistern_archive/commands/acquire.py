@@ -44,8 +44,9 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from cistern_archive.core.errors import CatalogError
-        from cistern_archive.tritech.acquire import acquire_scan, find_site, settings_for_record
-        from cistern_archive.tritech.driver import DriverConfig
+        from cistern_archive.acquisition.session import acquire_scan, find_site, settings_for_record
+        from cistern_archive.acquisition.driver import DriverConfig
+        from cistern_archive.archive import catalog_store
         from cistern_archive.tritech.messages import HeadSettings
 
         console = Console(stderr=True)
@@ -80,8 +81,9 @@ def register(app: typer.Typer) -> None:
 
             try:
                 result = acquire_scan(catalog, port, site, station, depth_m=depth, heading_deg=heading,
-                                      settings=settings, config=config, archive_dir=archive_dir,
-                                      use_archive=not no_archive, accept_missing=accept_gaps, on_line=on_line,
+                                      settings=settings, config=config,
+                                      store=None if no_archive else catalog_store(catalog, archive_dir),
+                                      accept_missing=accept_gaps, on_line=on_line,
                                       log=log)
             except CatalogError as exc:
                 typer.echo(f"error: {exc}", err=True)

@@ -35,7 +35,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Emulate a Micron DST head echoing a catalog site's simulated walls; prints the port URL first."""
         from cistern_archive.core.errors import CatalogError
-        from cistern_archive.tritech.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
+        from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
 
         try:
             plan = FaultPlan.parse(faults)

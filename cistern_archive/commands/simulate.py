@@ -1,7 +1,7 @@
 """``cistern-archive simulate SPEC.yaml --out DIR``: simulate a site with known truth.
 
 Writes the scans, ``truth.json`` and a ready site record under ``DIR`` (a catalog root); see
-:mod:`cistern_archive.sonar.simulation_output` for the layout.
+:mod:`cistern_archive.simulation.output` for the layout.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Simulate stationary scans of each spec's site; write scans, truth.json and a site record."""
         from cistern_archive.core.errors import CatalogError
-        from cistern_archive.sonar.simulation_output import write_site
-        from cistern_archive.sonar.simulator import simulate_site
-        from cistern_archive.sonar.simulator_spec import EffectsSpec, load_spec
+        from cistern_archive.simulation.output import write_site
+        from cistern_archive.simulation.simulator import simulate_site
+        from cistern_archive.simulation.spec import EffectsSpec, load_spec
 
         if record_dir and (Path(record_dir).is_absolute() or ".." in Path(record_dir).parts):
             typer.echo(f"error: --record-dir {record_dir!r} must be a folder inside --out", err=True)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cistern_archive.core.files import write_bytes_atomic
-from cistern_archive.pipeline.contracts import EvidenceGrid
+from cistern_archive.core.grids import EvidenceGrid
 
 
 def grid_image(grid: EvidenceGrid) -> np.ndarray:

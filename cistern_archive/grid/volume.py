@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from cistern_archive.pipeline.contracts import EvidenceGrid
+from cistern_archive.core.grids import EvidenceGrid
 
 UNKNOWN_PROBABILITY = 0.5
 

@@ -366,7 +366,7 @@ def rebuild(
         Re-raised after writing a summary marked ``interrupted`` (unfinished sites keep their previous
         report).
     """
-    from cistern_archive.catalog.validate import validate_catalog
+    from cistern_archive.pipeline.validate import validate_catalog
 
     started = time.perf_counter()
     catalog, out = Path(catalog).resolve(), Path(out).resolve()

@@ -6,14 +6,14 @@ conformance check.
 >>> assert report.passed
 
 Random multi-chamber cisterns for the physical sonar simulator, with truth poses, are in
-:mod:`cistern_archive.testing.chambers` (used by ``benchmarks/sites.py --random``).
+:mod:`cistern_archive.simulation.chambers` (used by ``benchmarks/sites.py --random``).
 
 The pytest plugin :mod:`cistern_archive.testing.pytest_plugin` (registered through ``pytest11``) gives
 tests the ``simulated_pair``, ``simulated_pairs`` and ``isolated_registry`` fixtures.
 """
 
 from cistern_archive.testing.conformance import Check, ConformanceReport, check_matcher
-from cistern_archive.testing.pairs import PairSpec, SimulatedPair, pair_set, simulated_pair
+from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, pair_set, simulated_pair
 from cistern_archive.testing.scoring import PairScore, score
 
 __all__ = [

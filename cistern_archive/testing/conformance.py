@@ -27,7 +27,7 @@ import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from cistern_archive.pipeline.contracts import Matcher, MatchResult, StageParams
-from cistern_archive.testing.pairs import SimulatedPair, simulated_pair
+from cistern_archive.simulation.pairs import SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import PairScore, score
 
 

@@ -3,7 +3,7 @@
 Fixtures
 --------
 simulated_pair
-    One overlapping (≥ 50 %) :class:`~cistern_archive.testing.pairs.SimulatedPair` with 3 cm range noise (seed 0).
+    One overlapping (≥ 50 %) :class:`~cistern_archive.simulation.pairs.SimulatedPair` with 3 cm range noise (seed 0).
 simulated_pairs
     A factory ``simulated_pairs(n, seed=0, no_overlap_fraction=0.0)``.
 isolated_registry
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from cistern_archive.pipeline.registry import GROUPS, Registry
-from cistern_archive.testing.pairs import SimulatedPair, pair_set, simulated_pair as _draw_pair
+from cistern_archive.simulation.pairs import SimulatedPair, pair_set, simulated_pair as _draw_pair
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 from cistern_archive.pipeline.contracts import MatchResult
-from cistern_archive.testing.pairs import SimulatedPair
+from cistern_archive.simulation.pairs import SimulatedPair
 
 SUCCESS_TRANSLATION_M = 0.10
 SUCCESS_ROTATION_DEG = 2.0

@@ -57,7 +57,7 @@ def gallery_ring(centre: np.ndarray, widths: Sequence[float], recesses: Sequence
     -------
     ndarray, shape (M, 2)
         Left wall forwards, then right wall backwards (the vertex order of
-        :func:`cistern_archive.sonar.simulator_spec.corridor_ring`).
+        :func:`cistern_archive.simulation.spec.corridor_ring`).
 
     Raises
     ------

@@ -7,7 +7,7 @@ site (or of two different sites, for pairs with no overlap), with the true displ
 Two sonar models (``PairSpec.sonar``):
 
 * ``"simulator"``: the project's physical sonar simulator
-  (:func:`cistern_archive.sonar.simulator.simulate_scan`: beam patterns, speckle, multipath ghosts,
+  (:func:`cistern_archive.simulation.simulator.simulate_scan`: beam patterns, speckle, multipath ghosts,
   reverberation, 8-bit AD conversion) followed by the pipeline's beam segmentation
   (:func:`cistern_archive.sonar.segmentation.segment`, ``PairSpec.segmentation``), so matchers see the
   ranges they will see in a site build. ``noise_m`` then only labels the pair; the noise is the
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cistern_archive.core.scan import RangeScan
-from cistern_archive.testing.geometry import Environment, cast_rays, random_environment, visible_from
+from cistern_archive.simulation.rays import Environment, cast_rays, random_environment, visible_from
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,8 +86,8 @@ def simulate_sonar_scan(env: Environment, position: np.ndarray, yaw_rad: float, 
     a :class:`~cistern_archive.catalog.models.Segmentation` method; default, the records' default)."""
     from cistern_archive.catalog.models import Segmentation
     from cistern_archive.sonar.segmentation import segment
-    from cistern_archive.sonar.simulator import TruePose, simulate_scan
-    from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec
+    from cistern_archive.simulation.simulator import TruePose, simulate_scan
+    from cistern_archive.simulation.spec import EffectsSpec, SonarSpec
 
     sonar = SonarSpec(range_m=max_range_m, bins=int(round(max_range_m / 0.04)), step_deg=step_deg,
                       sub_rays=5, vertical_rays=5)

@@ -14,7 +14,7 @@ import numpy as np
 
 from cistern_archive.sonar.geometry import contains, interpolate_slice, overlap_fraction
 from cistern_archive.core.scan import wrap_angle
-from cistern_archive.sonar.simulator_spec import RouteSpec, SimulationSpec
+from cistern_archive.simulation.spec import RouteSpec, SimulationSpec
 
 
 @dataclass(frozen=True)

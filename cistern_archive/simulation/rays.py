@@ -24,7 +24,7 @@ class Environment:
     free_points : ndarray, shape (F, 2)
         Candidate station positions well inside the free space (at least 0.4 m from any wall).
     rings : tuple of ndarray
-        The same walls as closed vertex rings (K, 2), the form :mod:`cistern_archive.sonar.simulator`
+        The same walls as closed vertex rings (K, 2), the form :mod:`cistern_archive.simulation.simulator`
         takes.
     centre_line : ndarray or None, shape (V, 2)
         A gallery's centre line (``None`` for rooms).

@@ -9,7 +9,8 @@ Order of writes (each step leaves the catalog valid if the next never happens):
 3. **Site record** — the new scan appended to the record's ``scans:`` list by a textual insertion that
    keeps every other byte (comments included), validated with :func:`cistern_archive.catalog.loader.load_record`
    on a temporary sibling before it replaces the record.
-4. **Archive** — raw stream, scan and record ingested into the content-addressed archive.
+4. **Archive** — raw stream, scan and record handed to a ``store`` (the command passes the archive's
+   ingest, :func:`cistern_archive.archive.catalog_store`); acquisition itself knows no archive.
 
 A scan cut short (interrupt, link failure, gaps that did not fill) is still written and recorded, marked
 ``settings["partial"] = true`` with its station label suffixed ``-partial``.
@@ -31,7 +32,7 @@ from cistern_archive.core.errors import CatalogError, CisternError
 from cistern_archive.core.files import write_text_atomic
 from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.core.scan import yaw_from_compass_deg
-from cistern_archive.tritech.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
+from cistern_archive.acquisition.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
 from cistern_archive.tritech.codec import STEPS_PER_REV
 from cistern_archive.tritech.messages import STEP_SIZES, HeadSettings
 
@@ -219,27 +220,14 @@ def append_scan_to_record(loaded: LoadedRecord, entry: dict) -> Path:
     return path
 
 
-def _archive(catalog: Path, site_id: str, files: list[tuple[Path, str]], archive_dir: Path | None,
-             notes: list[str]) -> list[str]:
-    """Ingest ``(path, role)`` pairs into the archive; skipped with a note when the archive is unavailable."""
-    try:
-        from cistern_archive.archive import Archive, default_archive_dir
-    except ImportError as exc:
-        notes.append(f"archive skipped: cistern_archive.archive is not available ({exc})")
-        return []
-    root = Path(archive_dir) if archive_dir is not None else default_archive_dir(catalog)
-    done: list[str] = []
-    with Archive(root) as archive:
-        for path, role in files:
-            relative = path.resolve().relative_to(catalog.resolve()).as_posix()
-            archive.ingest(path, site_id=site_id, role=role, relative_path=relative)
-            done.append(relative)
-    return done
+Store = Callable[[str, list[tuple[Path, str]]], list[str]]
+"""Keeps a capture's files safe: called with the site id and ``(path, role)`` pairs, returns the
+catalog-relative paths it stored (the archive's ingest, see :func:`cistern_archive.archive.catalog_store`)."""
 
 
 def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: str, *, depth_m: float,
                  heading_deg: float, settings: HeadSettings | None = None, config: DriverConfig | None = None,
-                 archive_dir: str | os.PathLike | None = None, use_archive: bool = True, accept_missing: int = 0,
+                 store: Store | None = None, accept_missing: int = 0,
                  on_line: Callable[[ScanAssembler], None] | None = None,
                  log: Callable[[str], None] | None = None) -> AcquisitionResult:
     """Record one stationary scan from the head on ``port`` into site ``site_id`` of ``catalog``.
@@ -256,6 +244,9 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
         Head depth (m, positive down) and compass heading (degrees clockwise from north) during the scan.
     settings : HeadSettings, optional
         Default: :func:`settings_for_record`.
+    store : Store, optional
+        Keeps the raw stream, the scan and the record once they are written (none: they stay in the
+        catalog only). A store that fails leaves a note; the catalog files are complete either way.
     accept_missing : int
         Bearings that may stay empty after one revolution (see :func:`~.driver.collect_scan`).
     on_line, log : callable, optional
@@ -321,11 +312,9 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
     if not capture.complete:
         notes.append(f"partial scan ({capture.missing} of {settings.beams_per_revolution()} bearings "
                      f"missing) recorded as station {label!r}")
-    if use_archive:
+    if store is not None:
         try:
-            result.archived = _archive(root, site_id, [(raw_path, "scan"), (scan_path, "scan"),
-                                                       (result.record_path, "record")],
-                                       None if archive_dir is None else Path(archive_dir), notes)
+            result.archived = store(site_id, [(raw_path, "scan"), (scan_path, "scan"), (result.record_path, "record")])
         except (OSError, CisternError) as exc:
             notes.append(f"archive failed ({exc}); the catalog files are complete, re-run `cistern-archive "
                          "ingest` later")

@@ -22,7 +22,7 @@ The model of one stationary 360° scan (all levels in dB re an arbitrary source 
   (``roughness`` ≈ 0.03) returns grazing echoes ~15 dB below normal incidence, so a long gallery's side
   walls fade a few metres from the head; a rough rock-cut wall (0.2–0.5) returns them 4–8 dB below.
   ``effects.wall_roughness`` sets it for a site, a level's ``wall_roughness`` per depth
-  (:class:`~cistern_archive.sonar.simulator_spec.LevelSpec`). The compressed (matched-filter) pulse puts the
+  (:class:`~cistern_archive.simulation.spec.LevelSpec`). The compressed (matched-filter) pulse puts the
   echo in range as a Gaussian of standard deviation ``pulse_length_m / 2`` centred on ``r``; its energy is
   integrated over each bin (**bin quantisation**).
 * **Time-varying gain**: ``+ n_t log10 max(r, r_min) + 2 a_t r``; ``n_t`` and ``a_t`` need not equal
@@ -58,8 +58,8 @@ from scipy.special import ndtr
 
 from cistern_archive.sonar.geometry import Slice, interpolate_slice, ray_cast
 from cistern_archive.core.scan import Scan, wrap_angle
-from cistern_archive.sonar.simulator_spec import EffectsSpec, SimulationSpec, SonarSpec
-from cistern_archive.sonar.stations import TruePose, plan_route, station_poses, station_rng
+from cistern_archive.simulation.spec import EffectsSpec, SimulationSpec, SonarSpec
+from cistern_archive.simulation.stations import TruePose, plan_route, station_poses, station_rng
 
 __all__ = [
     "FULL_SCALE", "SimulatedScan", "SimulatedSite", "TruePose", "beam_bearings", "lobe_hits", "plan_route",

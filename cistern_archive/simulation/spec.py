@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from cistern_archive.catalog.loader import parse_yaml, validation_problems
 from cistern_archive.catalog.models import Location, Segmentation
 from cistern_archive.core.errors import CatalogError
-from cistern_archive.sonar.gallery import Recess, gallery_ring
+from cistern_archive.simulation.gallery import Recess, gallery_ring
 
 
 class _Strict(BaseModel):
@@ -25,7 +25,7 @@ class _Strict(BaseModel):
 
 
 class RecessSpec(_Strict):
-    """A niche or blind side branch cut into one wall of a corridor (:mod:`cistern_archive.sonar.gallery`)."""
+    """A niche or blind side branch cut into one wall of a corridor (:mod:`cistern_archive.simulation.gallery`)."""
 
     reach: int = Field(ge=0, description="index of the corridor reach (segment of the centre line)")
     side: Literal["left", "right"] = Field(description="wall, seen travelling along the centre line")
@@ -39,7 +39,7 @@ class RingSpec(_Strict):
 
     ``corridor`` is a tunnel of constant ``width_m`` around a centre line (mitred at the bends); with
     ``widths`` (one per reach) its section steps between reaches, and ``recesses`` cut niches and blind
-    side branches into its walls (:func:`cistern_archive.sonar.gallery.gallery_ring`).
+    side branches into its walls (:func:`cistern_archive.simulation.gallery.gallery_ring`).
     """
 
     polygon: list[tuple[float, float]] | None = Field(default=None, min_length=3)
@@ -129,7 +129,7 @@ class LevelSpec(_Strict):
     """The walls at one depth: the outer wall and optional islands (pillars).
 
     ``wall_roughness`` is the walls' diffuse backscatter at this depth (the isotropic term of the
-    simulator's ``cos^2 + roughness`` model, :mod:`cistern_archive.sonar.simulator`); when given it
+    simulator's ``cos^2 + roughness`` model, :mod:`cistern_archive.simulation.simulator`); when given it
     replaces ``effects.wall_roughness`` and is interpolated linearly in depth between the levels that
     give it. Plastered or smooth ashlar walls: about 0.03 (grazing echoes ~15 dB below normal
     incidence); rough rock-cut walls with tool marks and joints: 0.2-0.5.

@@ -3,7 +3,7 @@
 Three layers, each usable on its own:
 
 * :class:`SimulatedEcho` — what the head hears: one revolution of scan lines from the sonar model of
-  :mod:`cistern_archive.sonar.simulator`, for the head's current range, bins and step, from a station in
+  :mod:`cistern_archive.simulation.simulator`, for the head's current range, bins and step, from a station in
   a catalog site (:meth:`SimulatedEcho.from_catalog`) or inside any polygon (:meth:`SimulatedEcho.from_polygon`).
 * :class:`EmulatedHead` — the head's state machine of ``../shared/protocols/tritech_micron.md`` §11.5,
   without I/O: ``handle(packet, now)`` and ``poll(now)`` return the bytes to send.
@@ -32,9 +32,9 @@ import numpy as np
 
 from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.geometry import Slice, interpolate_slice
-from cistern_archive.sonar.simulator import TruePose, simulate_scan, station_poses
-from cistern_archive.sonar.simulator_spec import EffectsSpec, SonarSpec, load_spec
-from cistern_archive.tritech.acquire import find_site
+from cistern_archive.simulation.simulator import TruePose, simulate_scan, station_poses
+from cistern_archive.simulation.spec import EffectsSpec, SonarSpec, load_spec
+from cistern_archive.acquisition.session import find_site
 from cistern_archive.tritech.codec import (
     DEFAULT_SPEED_OF_SOUND,
     HDCTRL_STARELLIM,
@@ -145,7 +145,7 @@ class SimulatedEcho:
         """Intensities (0..255) of one revolution for the head's settings.
 
         Row ``k`` is the beam ``k x step`` clockwise from ahead (bearing ``3200 + k x step``), as
-        :func:`~cistern_archive.sonar.simulator.beam_bearings` orders them.
+        :func:`~cistern_archive.simulation.simulator.beam_bearings` orders them.
 
         The spec's AD window is taken as the head's at the typical command (IGain 84, ADLow 8, ADSpan 81,
         §12.3); the command's departures from it move the window: ``+80/210 dB`` per IGain unit lowers the

@@ -41,7 +41,7 @@ import numpy as np
 import yaml
 
 from cistern_archive.sonar.geometry import contains, edges_of
-from cistern_archive.sonar.simulator_spec import SimulationSpec
+from cistern_archive.simulation.spec import SimulationSpec
 
 ROOM_M = (2.5, 8.0)
 TUNNEL_WIDTH_M = (0.8, 1.2)
@@ -394,7 +394,7 @@ def write_specs(cisterns: list[GeneratedCistern], root: Path) -> list[Path]:
         path = Path(root) / "specs" / f"{cistern.spec.id}.yaml"
         path.parent.mkdir(parents=True, exist_ok=True)
         body = yaml.safe_dump(cistern.spec.model_dump(mode="json", exclude_none=True), sort_keys=False, width=100)
-        path.write_text(f"# A random {cistern.chambers}-chamber cistern of cistern_archive.testing.chambers.\n"
+        path.write_text(f"# A random {cistern.chambers}-chamber cistern of cistern_archive.simulation.chambers.\n"
                         + body, encoding="utf-8")
         paths.append(path)
     return paths
@@ -403,8 +403,8 @@ def write_specs(cisterns: list[GeneratedCistern], root: Path) -> list[Path]:
 def simulate_into(spec_path: Path, root: Path) -> Path:
     """Simulate the spec at ``spec_path`` into the catalog ``root`` (scans, truth, ``sites/<id>.yaml``),
     as ``cistern-archive simulate SPEC --out ROOT --record-dir sites`` does; return the record's path."""
-    from cistern_archive.sonar.simulation_output import write_site
-    from cistern_archive.sonar.simulator import simulate_site
-    from cistern_archive.sonar.simulator_spec import load_spec
+    from cistern_archive.simulation.output import write_site
+    from cistern_archive.simulation.simulator import simulate_site
+    from cistern_archive.simulation.spec import load_spec
 
     return write_site(simulate_site(load_spec(spec_path)), Path(root), spec_path=spec_path, record_dir="sites")

@@ -2,7 +2,7 @@
 
 Each site is a rectangle of random size with two to four stations along its long axis and its true
 width and length as references; the specs are written to ``ROOT/specs/`` and simulated with
-:func:`cistern_archive.sonar.simulator.simulate_site` into ``ROOT/data/`` and ``ROOT/sites/``.
+:func:`cistern_archive.simulation.simulator.simulate_site` into ``ROOT/data/`` and ``ROOT/sites/``.
 """
 
 from __future__ import annotations
@@ -54,9 +54,9 @@ def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None
 
 def write_synthetic_catalog(root: Path, n_sites: int, *, seed: int = 0, stations: int | None = None) -> list[Path]:
     """Write ``n_sites`` simulated sites under the catalog root ``root``; return their record paths."""
-    from cistern_archive.sonar.simulation_output import write_site
-    from cistern_archive.sonar.simulator import simulate_site
-    from cistern_archive.sonar.simulator_spec import load_spec
+    from cistern_archive.simulation.output import write_site
+    from cistern_archive.simulation.simulator import simulate_site
+    from cistern_archive.simulation.spec import load_spec
 
     root = Path(root)
     (root / "specs").mkdir(parents=True, exist_ok=True)

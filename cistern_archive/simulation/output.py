@@ -37,8 +37,8 @@ from cistern_archive.catalog.models import (
 from cistern_archive.core.files import write_text_atomic
 from cistern_archive.sonar.geometry import interpolate_slice, ray_cast
 from cistern_archive.sonar.interchange import write_scan
-from cistern_archive.sonar.simulator import SimulatedSite, TruePose, station_rng
-from cistern_archive.sonar.simulator_spec import MeasureSpec, ReferenceSpec, SimulationSpec
+from cistern_archive.simulation.simulator import SimulatedSite, TruePose, station_rng
+from cistern_archive.simulation.spec import MeasureSpec, ReferenceSpec, SimulationSpec
 
 TRUTH_SCHEMA = "cistern-archive/simulation-truth"
 
