@@ -11,6 +11,7 @@ import sys
 
 import typer
 
+from cistern_archive import __version__
 from cistern_archive.commands import COMMAND_MODULES, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
 from cistern_archive.core.errors import CisternError, EnvironmentProblem, describe_os_error
 
@@ -25,8 +26,6 @@ app = typer.Typer(
 
 def _print_version(value: bool) -> None:
     if value:
-        from cistern_archive import __version__
-
         typer.echo(__version__)
         raise typer.Exit(0)
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cistern_archive import __version__
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import Index
 from cistern_archive.archive.store import ObjectStore
@@ -30,8 +31,6 @@ INDEX_NAME = "index.sqlite"
 
 def agent() -> str:
     """The agent recorded with every event: this software and its version."""
-    from cistern_archive import __version__
-
     return f"cistern-archive {__version__}"
 
 

@@ -43,7 +43,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from cistern_archive.core.errors import CatalogError
+        from cistern_archive.core.errors import CatalogError  # deferred
         from cistern_archive.acquisition.session import acquire_scan, find_site, settings_for_record
         from cistern_archive.acquisition.driver import DriverConfig
         from cistern_archive.archive import catalog_store

@@ -34,7 +34,7 @@ def register(app: typer.Typer) -> None:
         boot_s: float = typer.Option(1.5, "--boot", min=0.0, help="Silence after a reboot, seconds."),
     ) -> None:
         """Emulate a Micron DST head echoing a catalog site's simulated walls; prints the port URL first."""
-        from cistern_archive.core.errors import CatalogError
+        from cistern_archive.core.errors import CatalogError  # deferred
         from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
 
         try:

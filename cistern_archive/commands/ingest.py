@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Store a read-only copy of each file under its SHA-256 and record the ingest; a damaged archived
         copy with the same digest is restored."""
-        from cistern_archive.archive import Archive
+        from cistern_archive.archive import Archive  # deferred
 
         missing = [f for f in files if not f.is_file()]
         for path in missing:

@@ -41,7 +41,7 @@ def scan_summary(scan: Scan) -> dict:
 
 def inspect_file(path: Path, fmt: str | None = None) -> dict:
     """Read ``path`` and return the ``inspect --json`` document; raises ReaderError when unreadable."""
-    from cistern_archive.sonar.readers import read_file
+    from cistern_archive.sonar.readers import read_file  # deferred
 
     result = read_file(path, fmt)
     return {"format": result.format, "file": str(path), "scans": [scan_summary(s) for s in result.scans],

@@ -11,7 +11,7 @@ from cistern_archive.commands import EXIT_OK
 
 def plugin_listing() -> list[dict]:
     """Every installed plugin, loaded to check it: stage, name, entry point, distribution, version, error."""
-    from cistern_archive.pipeline.registry import default_registry
+    from cistern_archive.pipeline.registry import default_registry  # deferred
 
     registry = default_registry()
     registry.load_all()

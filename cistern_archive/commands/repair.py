@@ -19,7 +19,7 @@ def register(app: typer.Typer) -> None:
         """Restore damaged or missing objects from their originals, index stray objects, replace a damaged
         index (kept as index.sqlite.damaged-TIME); then check every object. Exit 1 when something could not
         be restored."""
-        from cistern_archive.archive.repair import repair_archive
+        from cistern_archive.archive.repair import repair_archive  # deferred
 
         root = existing_archive(archive, catalog)
         report = repair_archive(root, catalog if catalog.is_dir() else None)

@@ -22,7 +22,7 @@ def register(app: typer.Typer) -> None:
         ideal: bool = typer.Option(False, "--ideal", help="Switch every imperfection off (noise-free)."),
     ) -> None:
         """Simulate stationary scans of each spec's site; write scans, truth.json and a site record."""
-        from cistern_archive.core.errors import CatalogError
+        from cistern_archive.core.errors import CatalogError  # deferred
         from cistern_archive.simulation.output import write_site
         from cistern_archive.simulation.simulator import simulate_site
         from cistern_archive.simulation.spec import EffectsSpec, load_spec

@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
         catalog: Path = typer.Option(Path("catalog"), "--catalog", help="Catalog root folder."),
     ) -> None:
         """Validate the catalog; print "file:line: field: message" for every problem (exit 2 if any)."""
-        from cistern_archive.pipeline.validate import validate_catalog
+        from cistern_archive.pipeline.validate import validate_catalog  # deferred
 
         report = validate_catalog(catalog)
         for problem in report.problems:

@@ -21,7 +21,7 @@ def archive_option():
 
 def archive_root(archive: Path | None, catalog: Path) -> Path:
     """``--archive``, else the archive ``rebuild --catalog CATALOG`` uses."""
-    from cistern_archive.archive import default_archive_dir
+    from cistern_archive.archive import default_archive_dir  # deferred
 
     return archive if archive is not None else default_archive_dir(catalog)
 
@@ -43,7 +43,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Check every stored object against its SHA-256; list each mismatch, missing or unindexed object
         (exit 1; `repair` restores them)."""
-        from cistern_archive.archive import Archive, verify_archive
+        from cistern_archive.archive import Archive, verify_archive  # deferred
         from cistern_archive.archive.index import DamagedIndex
 
         root = existing_archive(archive, catalog)

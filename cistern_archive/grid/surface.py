@@ -93,7 +93,7 @@ class SurfaceMesh:
 
     def to_pyvista(self):
         """The mesh as a :class:`pyvista.PolyData` with the point array ``depth_m``."""
-        import pyvista
+        import pyvista  # deferred: VTK loads in a second; only meshing needs it
 
         cells = np.column_stack([np.full(len(self.triangles), 3), self.triangles]).astype(np.int64).ravel()
         mesh = pyvista.PolyData(np.asarray(self.points, dtype=np.float64), cells)
@@ -273,7 +273,7 @@ def _compact(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def _smooth_and_decimate(points: np.ndarray, faces: np.ndarray, params: SurfaceParams) -> tuple[np.ndarray, np.ndarray]:
     """Taubin smoothing (no shrinkage) and quadric decimation, with VTK through pyvista."""
-    import pyvista
+    import pyvista  # deferred: VTK loads in a second; only meshing needs it
 
     cells = np.column_stack([np.full(len(faces), 3), faces]).astype(np.int64).ravel()
     mesh = pyvista.PolyData(np.asarray(points, dtype=np.float64), cells)

@@ -132,7 +132,7 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
     dict
         View key → file name.
     """
-    import pyvista
+    import pyvista  # deferred: VTK loads in a second and picks its OpenGL window at import
 
     offscreen.configure()
     files: dict[str, str] = {}

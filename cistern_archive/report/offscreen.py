@@ -27,7 +27,7 @@ def configure() -> None:
     """Make pyvista render off screen, through EGL when no display is set (idempotent)."""
     if not has_display():
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", EGL_WINDOW)
-    import pyvista
+    import pyvista  # deferred: VTK loads in a second and picks its OpenGL window at import
 
     pyvista.OFF_SCREEN = True
 

@@ -22,6 +22,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from cistern_archive.report.figures import DIMENSION_COLOURS
+from cistern_archive.report.model3d import nice_length
 
 
 SVG_WIDTH_PX = 1000
@@ -99,12 +100,6 @@ def write_dxf(path: Path, plan: Sequence[Outline]) -> Path:
     return path
 
 
-def _nice_length(span_m: float) -> float:
-    from cistern_archive.report.model3d import nice_length
-
-    return nice_length(span_m)
-
-
 def svg_text(plan: Sequence[Outline], *, title: str) -> str:
     """The SVG document of the plan (see the module docstring)."""
     points = np.concatenate([line for o in plan for line in o.polylines]) if plan else np.zeros((1, 2))
@@ -143,7 +138,7 @@ def svg_text(plan: Sequence[Outline], *, title: str) -> str:
                      f'stroke="{colour}" stroke-width="{stroke:.1f}"/>')
         parts.append(f'<text x="{lx + 2 * font:.1f}" y="{ly:.1f}" font-size="{font:.1f}">depth '
                      f"{outline.depth_m:.2f} m</text>")
-    length = _nice_length(x1 - x0 if x1 > x0 else span)
+    length = nice_length(x1 - x0 if x1 > x0 else span)
     bx, by = sx(x0), (y1 - y0 + 2.2 * margin) * scale
     parts.append(f'<g id="scale-bar"><line x1="{bx:.1f}" y1="{by:.1f}" x2="{bx + length * scale:.1f}" y2="{by:.1f}" '
                  f'stroke="black" stroke-width="{2 * stroke:.1f}"/>'

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cistern_archive
+from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.core.errors import PluginError
 from cistern_archive.pipeline.contracts import STAGES
@@ -51,9 +53,6 @@ def code_version() -> str:
     set, so that a code change rebuilds every site even when the version number did not move. Plugins
     are hashed per stage, whatever distribution they come from (:func:`plugin_material`).
     """
-    import cistern_archive
-    from cistern_archive import __version__
-
     package = Path(cistern_archive.__file__).resolve().parent
     digest = hashlib.sha256()
     roots = [package]

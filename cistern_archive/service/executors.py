@@ -53,7 +53,7 @@ class LocalExecutor:
         self._pool: ProcessPoolExecutor | None = None
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        from cistern_archive.service.worker import die_with_parent
+        from cistern_archive.service.worker import die_with_parent  # deferred: the worker loads the report's VTK
 
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context,
                                          initializer=die_with_parent, initargs=(os.getpid(),))

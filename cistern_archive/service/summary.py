@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from cistern_archive.core.exitcodes import EXIT_OK, EXIT_SITES_FAILED, EXIT_USAGE
+from cistern_archive.core.files import write_json_atomic
 
 SUMMARY_SCHEMA_VERSION = 1
 
@@ -86,8 +86,5 @@ class RebuildSummary(BaseModel):
         return EXIT_SITES_FAILED if self.not_ok else EXIT_OK
 
     def write(self, path: Path) -> Path:
-        from cistern_archive.core.files import write_json_atomic
-
-        write_json_atomic(self.model_dump(mode="json"), path)
-        os.chmod(path, 0o644)  # published beside the reports, readable like them
+        write_json_atomic(self.model_dump(mode="json"), path)  # 0644: readable like the reports
         return path

@@ -40,6 +40,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from cistern_archive.simulation.output import write_site
+from cistern_archive.simulation.simulator import simulate_site
+from cistern_archive.simulation.spec import load_spec
 from cistern_archive.sonar.geometry import contains, edges_of
 from cistern_archive.simulation.spec import SimulationSpec
 
@@ -403,8 +406,4 @@ def write_specs(cisterns: list[GeneratedCistern], root: Path) -> list[Path]:
 def simulate_into(spec_path: Path, root: Path) -> Path:
     """Simulate the spec at ``spec_path`` into the catalog ``root`` (scans, truth, ``sites/<id>.yaml``),
     as ``cistern-archive simulate SPEC --out ROOT --record-dir sites`` does; return the record's path."""
-    from cistern_archive.simulation.output import write_site
-    from cistern_archive.simulation.simulator import simulate_site
-    from cistern_archive.simulation.spec import load_spec
-
     return write_site(simulate_site(load_spec(spec_path)), Path(root), spec_path=spec_path, record_dir="sites")

@@ -30,8 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cistern_archive.catalog.models import Segmentation
 from cistern_archive.core.scan import RangeScan
 from cistern_archive.simulation.rays import Environment, cast_rays, random_environment, visible_from
+from cistern_archive.simulation.simulator import TruePose, simulate_scan
+from cistern_archive.simulation.spec import EffectsSpec, SonarSpec
+from cistern_archive.sonar.segmentation import segment
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,11 +88,6 @@ def simulate_sonar_scan(env: Environment, position: np.ndarray, yaw_rad: float, 
                         segmentation: str | None = None) -> RangeScan:
     """One sweep through the physical simulator and the pipeline's beam segmentation (``segmentation``:
     a :class:`~cistern_archive.catalog.models.Segmentation` method; default, the records' default)."""
-    from cistern_archive.catalog.models import Segmentation
-    from cistern_archive.sonar.segmentation import segment
-    from cistern_archive.simulation.simulator import TruePose, simulate_scan
-    from cistern_archive.simulation.spec import EffectsSpec, SonarSpec
-
     sonar = SonarSpec(range_m=max_range_m, bins=int(round(max_range_m / 0.04)), step_deg=step_deg,
                       sub_rays=5, vertical_rays=5)
     effects = EffectsSpec(compass_sigma_deg=0.0, compass_bias_deg=0.0, depth_sigma_m=0.0)

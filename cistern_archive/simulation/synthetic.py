@@ -11,6 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from cistern_archive.simulation.output import write_site
+from cistern_archive.simulation.simulator import simulate_site
+from cistern_archive.simulation.spec import load_spec
 
 
 def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None = None) -> dict:
@@ -54,10 +57,6 @@ def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None
 
 def write_synthetic_catalog(root: Path, n_sites: int, *, seed: int = 0, stations: int | None = None) -> list[Path]:
     """Write ``n_sites`` simulated sites under the catalog root ``root``; return their record paths."""
-    from cistern_archive.simulation.output import write_site
-    from cistern_archive.simulation.simulator import simulate_site
-    from cistern_archive.simulation.spec import load_spec
-
     root = Path(root)
     (root / "specs").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)

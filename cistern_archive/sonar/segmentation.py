@@ -83,6 +83,7 @@ from typing import Protocol
 
 import numpy as np
 
+from cistern_archive.catalog.models import Segmentation
 from cistern_archive.core.scan import RangeScan, Scan
 
 PAPER_SCALE = 255
@@ -398,8 +399,6 @@ def segment_intensities(scan: Scan, settings: SegmentationSettings | None = None
     ndarray of uint8, shape (A, B)
     """
     if settings is None:
-        from cistern_archive.catalog.models import Segmentation
-
         settings = Segmentation(method="paper")
     peaks = peak_bins(scan, settings)
     out = np.zeros(scan.intensities.shape, dtype=np.uint8)
