@@ -23,8 +23,10 @@ import time
 
 import numpy as np
 
-from cistern_archive.tritech.codec import HeadData, StreamDecoder, encode_head_data
-from cistern_archive.tritech.messages import Alive, HeadInf, HeadSettings, decode_message, head_data_for
+from cistern_archive.tritech.stream import StreamDecoder
+from cistern_archive.tritech.head_data import HeadData, encode_head_data
+from cistern_archive.tritech.messages import Alive, HeadInf, decode_message, head_data_for
+from cistern_archive.tritech.settings import HeadSettings
 
 LINE_RATE = 115200 / 10  # bytes/s on an 8N1 line
 

@@ -55,13 +55,9 @@ sys.path.insert(0, str(ROOT))
 from cistern_archive.sonar.readers import read_file  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cistern_archive.tritech.codec import (  # noqa: E402
-    MessageType,
-    StreamDecoder,
-    decode_head_data,
-    encode_packet,
-    iter_packets,
-)
+from cistern_archive.tritech.codec import MessageType, encode_packet  # noqa: E402
+from cistern_archive.tritech.stream import StreamDecoder, iter_packets  # noqa: E402
+from cistern_archive.tritech.head_data import decode_head_data  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 LINE_RATE_BYTES_S = 115200 / 10  # 8N1: 10 bits per byte

@@ -17,7 +17,7 @@ from cistern_archive.sonar.interchange import read_scan
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.core.scan import compass_deg_from_yaw
 from cistern_archive.acquisition.session import acquire_scan, insert_scan_text
-from cistern_archive.tritech.codec import iter_packets
+from cistern_archive.tritech.stream import iter_packets
 from cistern_archive.acquisition.driver import DriverConfig
 from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
 from tritech_helpers import make_catalog, tiny_catalog  # noqa: F401  (fixture)

@@ -9,18 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cistern_archive.tritech.codec import (
+from cistern_archive.tritech.codec import MessageType, PacketError, decode_packet, encode_packet
+from cistern_archive.tritech.stream import StreamDecoder, iter_packets
+from cistern_archive.tritech.head_data import (
     HeadData,
-    MessageType,
-    PacketError,
-    StreamDecoder,
     ad_interval_for,
     bearing_to_rad,
     decode_head_data,
-    decode_packet,
     encode_head_data,
-    encode_packet,
-    iter_packets,
     rad_to_bearing,
 )
 

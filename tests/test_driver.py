@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cistern_archive.simulation.spec import EffectsSpec
-from cistern_archive.tritech.codec import encode_head_data, rad_to_bearing
+from cistern_archive.tritech.head_data import encode_head_data, rad_to_bearing
 from cistern_archive.acquisition.driver import (
     DriverConfig,
     LinkError,
@@ -23,7 +23,8 @@ from cistern_archive.acquisition.driver import (
     collect_scan,
 )
 from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
-from cistern_archive.tritech.messages import Alive, BBUserData, HeadInf, HeadSettings, VersionData, head_data_for
+from cistern_archive.tritech.messages import Alive, BBUserData, HeadInf, VersionData, head_data_for
+from cistern_archive.tritech.settings import HeadSettings
 
 ROOM = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]])
 FAST = HeadTiming(alive_period=0.2, boot=0.3, realtime=False)

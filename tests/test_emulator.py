@@ -18,7 +18,9 @@ import serial
 from cistern_archive.core.errors import CatalogError
 from cistern_archive.sonar.geometry import ray_cast
 from cistern_archive.simulation.spec import EffectsSpec
-from cistern_archive.tritech.codec import MessageType, StreamDecoder, decode_head_data, iter_packets
+from cistern_archive.tritech.codec import MessageType
+from cistern_archive.tritech.stream import StreamDecoder, iter_packets
+from cistern_archive.tritech.head_data import decode_head_data
 from cistern_archive.acquisition.emulator import (
     EmulatedHead,
     FaultInjector,
@@ -27,15 +29,10 @@ from cistern_archive.acquisition.emulator import (
     SimulatedEcho,
     build_emulator,
 )
-from cistern_archive.tritech.messages import (
-    Alive,
-    BBUserData,
-    HeadSettings,
-    ReverseCommand,
-    SendData,
-    VersionData,
-    command,
-)
+from cistern_archive.tritech.messages import Alive, BBUserData, SendData, VersionData
+from cistern_archive.tritech.codec import command
+from cistern_archive.tritech.settings import HeadSettings
+from cistern_archive.tritech.head_command import ReverseCommand
 
 from tritech_helpers import tiny_catalog  # noqa: F401  (fixture)
 

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from cistern_archive.cli import app
 from cistern_archive.commands import EXIT_USAGE
-from cistern_archive.tritech.codec import HeadData, encode_head_data
+from cistern_archive.tritech.head_data import HeadData, encode_head_data
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 runner = CliRunner()

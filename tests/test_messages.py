@@ -10,34 +10,22 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from cistern_archive.tritech.codec import (
-    HeadData,
-    MessageType,
-    Packet,
-    PacketError,
-    StreamDecoder,
-    decode_packet,
-    encode_head_data,
-    iter_packets,
-)
+from cistern_archive.tritech.codec import MessageType, Packet, PacketError, decode_packet
+from cistern_archive.tritech.stream import StreamDecoder, iter_packets
+from cistern_archive.tritech.head_data import HeadData, encode_head_data
 from cistern_archive.tritech.messages import (
     Alive,
     BBUserData,
-    GainCommand,
-    HeadCommand,
     HeadInf,
-    HeadSettings,
-    ReverseCommand,
     SendData,
     VersionData,
-    command,
     decode_message,
-    deg_to_steps,
     head_data_for,
-    settings_from_command,
-    steps_to_deg,
     time_of_day_ms,
 )
+from cistern_archive.tritech.codec import command
+from cistern_archive.tritech.settings import HeadSettings, deg_to_steps, settings_from_command, steps_to_deg
+from cistern_archive.tritech.head_command import GainCommand, HeadCommand, ReverseCommand
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.readers import READERS, detect_format, read_file
 from cistern_archive.sonar.sweeps import split_sweeps
-from cistern_archive.tritech.codec import HeadData, encode_head_data, encode_packet, MessageType
+from cistern_archive.tritech.codec import encode_packet, MessageType
+from cistern_archive.tritech.head_data import HeadData, encode_head_data
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

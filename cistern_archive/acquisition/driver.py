@@ -34,25 +34,12 @@ import serial
 
 from cistern_archive.core.errors import CisternError
 from cistern_archive.core.scan import Scan
-from cistern_archive.tritech.codec import (
-    DEFAULT_SPEED_OF_SOUND,
-    STEPS_PER_REV,
-    HeadData,
-    MessageType,
-    Packet,
-    PacketError,
-    StreamDecoder,
-    decode_head_data,
-)
-from cistern_archive.tritech.messages import (
-    Alive,
-    BBUserData,
-    HeadSettings,
-    SendData,
-    VersionData,
-    command,
-    time_of_day_ms,
-)
+from cistern_archive.tritech.codec import DEFAULT_SPEED_OF_SOUND, STEPS_PER_REV, MessageType, Packet, PacketError
+from cistern_archive.tritech.stream import StreamDecoder
+from cistern_archive.tritech.head_data import HeadData, decode_head_data
+from cistern_archive.tritech.messages import Alive, BBUserData, SendData, VersionData, time_of_day_ms
+from cistern_archive.tritech.codec import command
+from cistern_archive.tritech.settings import HeadSettings
 
 __all__ = [
     "DriverConfig",

@@ -35,30 +35,13 @@ from cistern_archive.sonar.geometry import Slice, interpolate_slice
 from cistern_archive.simulation.simulator import TruePose, simulate_scan, station_poses
 from cistern_archive.simulation.spec import EffectsSpec, SonarSpec, load_spec
 from cistern_archive.acquisition.session import find_site
-from cistern_archive.tritech.codec import (
-    DEFAULT_SPEED_OF_SOUND,
-    HDCTRL_STARELLIM,
-    STEPS_PER_REV,
-    MessageType,
-    Packet,
-    PacketError,
-    StreamDecoder,
-    encode_head_data,
-)
-from cistern_archive.tritech.messages import (
-    Alive,
-    BBUserData,
-    GainCommand,
-    HeadCommand,
-    HeadInf,
-    ReverseCommand,
-    VersionData,
-    decode_head_command,
-    head_data_for,
-    reply,
-    reversed_command,
-    with_gain,
-)
+from cistern_archive.tritech.codec import DEFAULT_SPEED_OF_SOUND, STEPS_PER_REV, MessageType, Packet, PacketError
+from cistern_archive.tritech.stream import StreamDecoder
+from cistern_archive.tritech.head_data import HDCTRL_STARELLIM, encode_head_data
+from cistern_archive.tritech.messages import Alive, BBUserData, HeadInf, VersionData, head_data_for
+from cistern_archive.tritech.codec import reply
+from cistern_archive.tritech.settings import reversed_command, with_gain
+from cistern_archive.tritech.head_command import GainCommand, HeadCommand, ReverseCommand, decode_head_command
 
 __all__ = [
     "EmulatedHead",

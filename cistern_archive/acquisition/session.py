@@ -34,7 +34,7 @@ from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.core.scan import yaw_from_compass_deg
 from cistern_archive.acquisition.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
 from cistern_archive.tritech.codec import STEPS_PER_REV
-from cistern_archive.tritech.messages import STEP_SIZES, HeadSettings
+from cistern_archive.tritech.settings import STEP_SIZES, HeadSettings
 
 __all__ = [
     "AcquisitionResult",

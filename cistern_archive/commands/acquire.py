@@ -47,7 +47,7 @@ def register(app: typer.Typer) -> None:
         from cistern_archive.acquisition.session import acquire_scan, find_site, settings_for_record
         from cistern_archive.acquisition.driver import DriverConfig
         from cistern_archive.archive import catalog_store
-        from cistern_archive.tritech.messages import HeadSettings
+        from cistern_archive.tritech.settings import HeadSettings
 
         console = Console(stderr=True)
         try:

@@ -49,16 +49,9 @@ from cistern_archive.core.errors import ReaderError
 from cistern_archive.sonar.readers import ReadResult, header_check, read_bytes, register_reader
 from cistern_archive.core.scan import yaw_from_compass_deg
 from cistern_archive.sonar.sweeps import Beam, ScanTemplate, beams_to_scans
-from cistern_archive.tritech.codec import (
-    DEFAULT_SPEED_OF_SOUND,
-    STEPS_PER_REV,
-    HeadData,
-    MessageType,
-    Packet,
-    PacketError,
-    StreamDecoder,
-    decode_head_data,
-)
+from cistern_archive.tritech.codec import DEFAULT_SPEED_OF_SOUND, STEPS_PER_REV, MessageType, Packet, PacketError
+from cistern_archive.tritech.stream import StreamDecoder
+from cistern_archive.tritech.head_data import HeadData, decode_head_data
 
 V4LOG_MAGIC = b"SeaNetV4 Log File"
 OLE_EPOCH_UNIX_DAYS = 25569.0  # 1970-01-01 in days since 1899-12-30
