@@ -64,8 +64,11 @@ def link_rate(n_bins: int) -> dict:
     runs in the same process, so the figure is a lower bound of the driver's own speed.
     """
     from cistern_archive.simulation.spec import EffectsSpec
-    from cistern_archive.acquisition.driver import DriverConfig, MicronDriver, collect_scan
-    from cistern_archive.acquisition.emulator import HeadTiming, SimulatedEcho, build_emulator
+    from cistern_archive.acquisition.driver import DriverConfig, MicronDriver
+    from cistern_archive.acquisition.assembly import collect_scan
+    from cistern_archive.acquisition.emulator import HeadTiming
+    from cistern_archive.acquisition.emulator_server import build_emulator
+    from cistern_archive.acquisition.echoes import SimulatedEcho
 
     room = np.array([[0.0, 0.0], [12.0, 0.0], [12.0, 8.0], [0.0, 8.0]])
     echo = SimulatedEcho.from_polygon(room, x_m=4.0, y_m=3.0, effects=EffectsSpec.ideal())

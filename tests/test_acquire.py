@@ -19,7 +19,10 @@ from cistern_archive.core.scan import compass_deg_from_yaw
 from cistern_archive.acquisition.session import acquire_scan, insert_scan_text
 from cistern_archive.tritech.stream import iter_packets
 from cistern_archive.acquisition.driver import DriverConfig
-from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
+from cistern_archive.acquisition.emulator import HeadTiming
+from cistern_archive.acquisition.emulator_server import build_emulator
+from cistern_archive.acquisition.faults import FaultPlan
+from cistern_archive.acquisition.echoes import SimulatedEcho
 from tritech_helpers import make_catalog, tiny_catalog  # noqa: F401  (fixture)
 
 REPO = Path(__file__).resolve().parents[1]

@@ -15,14 +15,12 @@ from hypothesis import strategies as st
 
 from cistern_archive.simulation.spec import EffectsSpec
 from cistern_archive.tritech.head_data import encode_head_data, rad_to_bearing
-from cistern_archive.acquisition.driver import (
-    DriverConfig,
-    LinkError,
-    MicronDriver,
-    ScanAssembler,
-    collect_scan,
-)
-from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
+from cistern_archive.acquisition.driver import DriverConfig, LinkError, MicronDriver
+from cistern_archive.acquisition.assembly import ScanAssembler, collect_scan
+from cistern_archive.acquisition.emulator import HeadTiming
+from cistern_archive.acquisition.emulator_server import build_emulator
+from cistern_archive.acquisition.faults import FaultPlan
+from cistern_archive.acquisition.echoes import SimulatedEcho
 from cistern_archive.tritech.messages import Alive, BBUserData, HeadInf, VersionData, head_data_for
 from cistern_archive.tritech.settings import HeadSettings
 

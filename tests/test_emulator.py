@@ -21,14 +21,10 @@ from cistern_archive.simulation.spec import EffectsSpec
 from cistern_archive.tritech.codec import MessageType
 from cistern_archive.tritech.stream import StreamDecoder, iter_packets
 from cistern_archive.tritech.head_data import decode_head_data
-from cistern_archive.acquisition.emulator import (
-    EmulatedHead,
-    FaultInjector,
-    FaultPlan,
-    HeadTiming,
-    SimulatedEcho,
-    build_emulator,
-)
+from cistern_archive.acquisition.emulator import EmulatedHead, HeadTiming
+from cistern_archive.acquisition.emulator_server import build_emulator
+from cistern_archive.acquisition.faults import FaultInjector, FaultPlan
+from cistern_archive.acquisition.echoes import SimulatedEcho
 from cistern_archive.tritech.messages import Alive, BBUserData, SendData, VersionData
 from cistern_archive.tritech.codec import command
 from cistern_archive.tritech.settings import HeadSettings

@@ -32,7 +32,8 @@ from cistern_archive.core.errors import CatalogError, CisternError
 from cistern_archive.core.files import write_text_atomic
 from cistern_archive.sonar.interchange import write_scan
 from cistern_archive.core.scan import yaw_from_compass_deg
-from cistern_archive.acquisition.driver import DriverConfig, MicronDriver, ScanAssembler, ScanCapture, collect_scan
+from cistern_archive.acquisition.driver import DriverConfig, MicronDriver
+from cistern_archive.acquisition.assembly import ScanAssembler, ScanCapture, collect_scan
 from cistern_archive.tritech.codec import STEPS_PER_REV
 from cistern_archive.tritech.settings import STEP_SIZES, HeadSettings
 

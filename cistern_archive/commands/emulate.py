@@ -35,7 +35,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Emulate a Micron DST head echoing a catalog site's simulated walls; prints the port URL first."""
         from cistern_archive.core.errors import CatalogError  # deferred
-        from cistern_archive.acquisition.emulator import FaultPlan, HeadTiming, SimulatedEcho, build_emulator
+        from cistern_archive.acquisition.emulator import HeadTiming
+        from cistern_archive.acquisition.emulator_server import build_emulator
+        from cistern_archive.acquisition.faults import FaultPlan
+        from cistern_archive.acquisition.echoes import SimulatedEcho
 
         try:
             plan = FaultPlan.parse(faults)
