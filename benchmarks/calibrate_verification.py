@@ -27,7 +27,7 @@ import numpy as np
 
 from cistern_archive.evaluation import in_compass_frame, wilson_interval
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.pipeline.runner import match_pair
+from cistern_archive.pipeline.runner import match_pair, resolve_stage
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_plugins.alignment import ReferenceModel
 from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, features
@@ -81,11 +81,10 @@ def labelled_fits(pairs: list[SimulatedPair], matcher_names=MATCHERS) -> tuple[n
     models = [ReferenceModel(pair.reference) for pair in pairs]
     rows, labels = [], []
     for name in matcher_names:
-        plugin = registry.load("matcher", name)
-        params = registry.check_params("matcher", name, OPEN_LIMITS)
-        limits = params.limits()
+        matcher = resolve_stage(registry, "matcher", name, OPEN_LIMITS)
+        limits = matcher.params.limits()
         for k, pair in enumerate(pairs):
-            result = match_pair(plugin.instance, params, [pair.reference, pair.moving], k, 0, 1)
+            result = match_pair(matcher, [pair.reference, pair.moving], k, 0, 1)
             if not np.isfinite([result.dx_m, result.dy_m, result.dyaw_rad]).all():
                 continue
             pose = np.array([result.dx_m, result.dy_m, result.dyaw_rad])
