@@ -66,7 +66,7 @@ import numpy as np
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.pipeline.runner import resolve_stage
+from cistern_archive.pipeline.runner import Stage, match_pair, resolve_stage
 from cistern_archive.core.errors import PluginError
 from cistern_archive.evaluation import strict_json, wilson_interval
 from cistern_archive.core.scan import RangeScan
@@ -240,9 +240,8 @@ def matchers(*, karto_min_response: float | None = None, paper: bool = False,
             plugin = reg.load("matcher", name)
             if getattr(plugin.instance, "needs_guess", False) and not (only and label in only):
                 continue  # a matcher for searches around a guess (every pair here starts from zero)
-            params = plugin.validate_params(overrides)
-            found[label] = lambda ref, mov, k, p=plugin.instance, q=params: p.match(ref, mov, q,
-                                                                                   rng=np.random.default_rng(k))
+            stage = Stage(plugin=plugin, params=plugin.validate_params(overrides))
+            found[label] = lambda ref, mov, k, m=stage: match_pair(m, [ref, mov], k, 0, 1)
         except PluginError as exc:
             missing[label] = str(exc)
     for make in (Open3DPointToPlane, lambda: KartoCorrelative(karto_min_response)):
@@ -357,7 +356,7 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
     per-matcher parameters, as a site record would give them)."""
     from cistern_archive.catalog.loader import load_record
     from cistern_archive.evaluation import in_compass_frame, reference_frame_errors
-    from cistern_archive.pipeline.runner import localize, match_pair, match_rounds, range_scans, record_ties
+    from cistern_archive.pipeline.runner import localize, match_rounds, range_scans, record_ties
 
     loaded = load_record(catalog / "sites" / f"{site}.yaml", catalog)
     rec = loaded.record
@@ -414,7 +413,7 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str, loc_overrides: dic
     reference scan's frame and after rigid alignment."""
     from cistern_archive.evaluation import reference_frame_errors
     from cistern_archive.simulation.rays import random_gallery, stations_along
-    from cistern_archive.pipeline.runner import localize, match_pair, match_rounds
+    from cistern_archive.pipeline.runner import localize, match_rounds
     from cistern_archive.simulation.pairs import simulate_range_scan
 
     rng = np.random.default_rng(seed)

@@ -2,7 +2,9 @@
 
 Data flows one way: ``RangeScan`` → :class:`MatchResult` → :class:`Poses` → :class:`MapResult`
 → :class:`DimensionTable`. A stage plugin is an object with a ``name``, a pydantic ``Params`` model
-(``extra="forbid"``) and the method(s) of its :class:`typing.Protocol` below. Results are frozen
+(``extra="forbid"``) and the method(s) of its :class:`typing.Protocol` below, with their signatures
+(checked at load, :mod:`cistern_archive.pipeline.signatures`). Optional capabilities are protocols of
+their own (:data:`CAPABILITIES`: :class:`GuidedMatcher`, :class:`GuidedLocalizer`). Results are frozen
 dataclasses holding numpy arrays; the runner turns them into the JSON ``SiteResult``.
 
 Conventions
@@ -77,9 +79,10 @@ class Matcher(Protocol):
 class GuidedMatcher(Matcher, Protocol):
     """Optional capability of a matcher: search only the window a :class:`MatchGuess` gives.
 
-    A matcher declares it by subclassing this protocol (``class MyMatcher(GuidedMatcher): ...``); the
-    registry then checks the signature of its ``match`` at load and the runner passes every pair's
-    ``guess`` (``None`` when the localizer has none)."""
+    A matcher implements it by subclassing this protocol (``class MyMatcher(GuidedMatcher): ...``) or
+    structurally, by taking ``guess`` in ``match``; the registry checks the signature of its ``match``
+    at load (:func:`cistern_archive.pipeline.signatures.check_methods`) and the runner passes every
+    pair's ``guess`` (``None`` when the localizer has none)."""
 
     def match(
         self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator,
@@ -116,9 +119,9 @@ class Localizer(Protocol):
 class GuidedLocalizer(Localizer, Protocol):
     """Optional capability of a localizer: further rounds of pairs, worked out from a first solution.
 
-    A localizer declares it by subclassing this protocol; the registry checks the signature of its
-    ``guided_pairs`` at load and the runner asks it round after round
-    (:func:`cistern_archive.pipeline.runner.match_rounds`)."""
+    A localizer implements it by subclassing this protocol or structurally, by defining
+    ``guided_pairs``; the registry checks the signature at load and the runner asks it round after
+    round (:func:`cistern_archive.pipeline.runner.match_rounds`)."""
 
     def guided_pairs(
         self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
