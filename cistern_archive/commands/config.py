@@ -27,6 +27,7 @@ def resolved_record(catalog: Path, site_id: str) -> dict[str, Any]:
     PluginError
         A stage's plugin cannot be loaded or its parameters are refused.
     """
+    # Imported when the command runs: the CLI starts (and prints --help) without the pipeline.
     from cistern_archive.pipeline.registry import default_registry
     from cistern_archive.pipeline.validate import find_site
 
@@ -37,7 +38,7 @@ def resolved_record(catalog: Path, site_id: str) -> dict[str, Any]:
 
 def as_yaml(data: dict[str, Any]) -> str:
     """``data`` as block YAML in the record's own key order (what a record file looks like)."""
-    import yaml
+    import yaml  # only this command writes YAML
 
     return yaml.safe_dump(data, sort_keys=False, allow_unicode=True, default_flow_style=False)
 

@@ -111,7 +111,7 @@ class RichProgress:
 def print_dry_run(catalog: Path, out: Path, *, sites: list[str] | None, force: bool) -> int:
     """Print one line per site (skip, new or rebuild, and why) and the catalog's problems; the exit code
     (0, or 2 for catalog problems)."""
-    from cistern_archive.service.dryrun import dry_run
+    from cistern_archive.service.dryrun import dry_run  # the service loads when a command runs, not at CLI start
 
     try:
         plan = dry_run(catalog, out, sites=sites, force=force)

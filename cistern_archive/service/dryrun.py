@@ -16,6 +16,7 @@ from typing import Any, Literal
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.pipeline.registry import Registry, default_registry
+from cistern_archive.pipeline.validate import validate_catalog
 from cistern_archive.service.buildkey import build_key
 from cistern_archive.service.rebuild import (CURRENT_STATUSES, is_current, published_build, require_catalog,
                                              select_sites, site_inputs)
@@ -168,8 +169,6 @@ def dry_run(catalog: Path, out: Path, *, sites: list[str] | None = None, force: 
     CatalogError
         There is no catalog at ``catalog``, or ``sites`` names no valid record.
     """
-    from cistern_archive.pipeline.validate import validate_catalog
-
     catalog, out = Path(catalog).resolve(), Path(out).resolve()
     require_catalog(catalog)
     registry = registry or default_registry()
