@@ -42,14 +42,14 @@ class PluginInfo:
 @dataclass(frozen=True)
 class LoadedPlugin:
     """An imported, checked plugin instance with its provenance and the optional capabilities it
-    declares (:data:`~cistern_archive.pipeline.contracts.CAPABILITIES`, checked at load)."""
+    implements (:data:`~cistern_archive.pipeline.contracts.CAPABILITIES`, checked at load)."""
 
     info: PluginInfo
     instance: Any
     capabilities: frozenset[type] = frozenset()
 
     def has(self, capability: type) -> bool:
-        """Whether the plugin declares ``capability`` (e.g. :class:`~cistern_archive.pipeline.contracts.GuidedMatcher`)."""
+        """Whether the plugin implements ``capability`` (e.g. :class:`~cistern_archive.pipeline.contracts.GuidedMatcher`)."""
         return capability in self.capabilities
 
     @property
@@ -198,8 +198,8 @@ class Registry:
 
 
 def checked_plugin(stage: str, instance: Any, info: PluginInfo | None = None) -> LoadedPlugin:
-    """``instance`` checked against its stage's protocol (members, method signatures, declared
-    capabilities, a ``Params`` model with defaults for every field), as a :class:`LoadedPlugin`.
+    """``instance`` checked against its stage's protocol (members, method signatures, the capabilities
+    it implements, a ``Params`` model with defaults for every field), as a :class:`LoadedPlugin`.
 
     ``info`` defaults to an unregistered plugin named after ``instance.name`` (benchmarks and tests run
     plugin objects that no entry point names).
