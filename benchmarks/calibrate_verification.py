@@ -27,7 +27,7 @@ import numpy as np
 
 from cistern_archive.evaluation import in_compass_frame, wilson_interval
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.pipeline.runner import match_pair
+from cistern_archive.pipeline.runner import match_pair, resolve_stage, segment_scan
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_plugins.alignment import ReferenceModel
 from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, features
@@ -55,14 +55,13 @@ def site_pairs(n_sites: int, seed: int, max_gap: int = 3) -> list[SimulatedPair]
     """Every ordered pair up to ``max_gap`` stations apart in ``n_sites`` random multi-chamber cisterns
     (:mod:`cistern_archive.simulation.chambers`): scans that look through tunnels and openings into the
     next chamber, as the pipeline meets them, segmented as the records' default does."""
-    from cistern_archive.sonar.segmentation import segment
     from cistern_archive.simulation.simulator import simulate_site
     from cistern_archive.simulation.chambers import random_cisterns
 
     out = []
     for cistern in random_cisterns(n_sites, seed):
         site = simulate_site(cistern.spec)
-        scans = [segment(s.scan, cistern.spec.segmentation) for s in site.scans]
+        scans = [segment_scan(s.scan, cistern.spec.segmentation) for s in site.scans]
         poses = [s.pose for s in site.scans]
         for i in range(len(scans)):
             for j in range(len(scans)):
@@ -81,11 +80,10 @@ def labelled_fits(pairs: list[SimulatedPair], matcher_names=MATCHERS) -> tuple[n
     models = [ReferenceModel(pair.reference) for pair in pairs]
     rows, labels = [], []
     for name in matcher_names:
-        plugin = registry.load("matcher", name)
-        params = registry.check_params("matcher", name, OPEN_LIMITS)
-        limits = params.limits()
+        matcher = resolve_stage(registry, "matcher", name, OPEN_LIMITS)
+        limits = matcher.params.limits()
         for k, pair in enumerate(pairs):
-            result = match_pair(plugin.instance, params, [pair.reference, pair.moving], k, 0, 1)
+            result = match_pair(matcher, [pair.reference, pair.moving], k, 0, 1)
             if not np.isfinite([result.dx_m, result.dy_m, result.dyaw_rad]).all():
                 continue
             pose = np.array([result.dx_m, result.dy_m, result.dyaw_rad])

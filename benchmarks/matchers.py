@@ -66,6 +66,7 @@ import numpy as np
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 from cistern_archive.pipeline.registry import default_registry
+from cistern_archive.pipeline.runner import Stage, match_pair, resolve_stage
 from cistern_archive.core.errors import PluginError
 from cistern_archive.evaluation import strict_json, wilson_interval
 from cistern_archive.core.scan import RangeScan
@@ -239,9 +240,8 @@ def matchers(*, karto_min_response: float | None = None, paper: bool = False,
             plugin = reg.load("matcher", name)
             if getattr(plugin.instance, "needs_guess", False) and not (only and label in only):
                 continue  # a matcher for searches around a guess (every pair here starts from zero)
-            params = plugin.validate_params(overrides)
-            found[label] = lambda ref, mov, k, p=plugin.instance, q=params: p.match(ref, mov, q,
-                                                                                   rng=np.random.default_rng(k))
+            stage = Stage(plugin=plugin, params=plugin.validate_params(overrides))
+            found[label] = lambda ref, mov, k, m=stage: match_pair(m, [ref, mov], k, 0, 1)
         except PluginError as exc:
             missing[label] = str(exc)
     for make in (Open3DPointToPlane, lambda: KartoCorrelative(karto_min_response)):
@@ -356,28 +356,26 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
     per-matcher parameters, as a site record would give them)."""
     from cistern_archive.catalog.loader import load_record
     from cistern_archive.evaluation import in_compass_frame, reference_frame_errors
-    from cistern_archive.pipeline.runner import load_scan, match_pair, match_rounds
-    from cistern_archive.sonar.segmentation import segment
+    from cistern_archive.pipeline.runner import localize, match_rounds, range_scans, record_ties
 
     loaded = load_record(catalog / "sites" / f"{site}.yaml", catalog)
     rec = loaded.record
-    scans = [segment(load_scan(loaded, ref), rec.segmentation) for ref in rec.scans]
+    scans = range_scans(loaded)
+    ties = record_ties(rec)
     truth = {t.station: t for t in rec.truth}
     true_xy = np.array([[truth[r.station].x_m, truth[r.station].y_m] for r in rec.scans])
     compass_err = [scans[k].yaw_rad - math.radians(truth[r.station].yaw_deg) for k, r in enumerate(rec.scans)]
     reg = default_registry()
     out: dict = {"site": site, "scans": len(scans), "matcher_params": matcher_params or {}, "results": {}}
     for mname in matcher_names:
-        matcher = reg.load("matcher", mname).instance
-        mparams = matcher.Params.model_validate((matcher_params or {}).get(mname, {}))
+        matcher = resolve_stage(reg, "matcher", mname, (matcher_params or {}).get(mname))
         cache: dict = {}
         for lname in ("wls", "pose-graph"):
-            loc = reg.load("localizer", lname).instance
-            lp = localizer_params(loc, lname, loc_overrides)
+            loc = resolve_stage(reg, "localizer", lname, (loc_overrides or {}).get(lname))
             start = time.perf_counter()
-            matches = match_rounds(scans, loc, lp, cached(cache, lambda i, j, g: match_pair(
-                matcher, mparams, scans, rec.seed, i, j, g)))
-            poses = loc.localize(scans, matches, lp)
+            matches = match_rounds(scans, loc, cached(cache, lambda i, j, g: match_pair(
+                matcher, scans, rec.seed, i, j, g)), ties=ties)
+            poses = localize(loc, scans, matches, ties)
             seconds = time.perf_counter() - start
             errs = reference_frame_errors(poses, true_xy, compass_err)
             ate = aligned_errors(poses, true_xy)
@@ -401,11 +399,6 @@ def gallery(site: str, matcher_names: list[str], catalog: Path, matcher_params: 
     return out
 
 
-def localizer_params(loc, name: str, overrides: dict | None):
-    """The localizer's parameters, with the ``overrides`` given for its name."""
-    return loc.Params.model_validate((overrides or {}).get(name, {}))
-
-
 def aligned_errors(poses, true_xy: np.ndarray, only: list[int] | None = None) -> list[float]:
     """Position errors of the placed scans (or of the scans ``only``) after rigid alignment onto the
     truth (the usual absolute trajectory error, :func:`cistern_archive.evaluation.aligned_errors`)."""
@@ -420,12 +413,12 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str, loc_overrides: dic
     reference scan's frame and after rigid alignment."""
     from cistern_archive.evaluation import reference_frame_errors
     from cistern_archive.simulation.rays import random_gallery, stations_along
-    from cistern_archive.pipeline.runner import match_pair, match_rounds
+    from cistern_archive.pipeline.runner import localize, match_rounds
     from cistern_archive.simulation.pairs import simulate_range_scan
 
     rng = np.random.default_rng(seed)
     reg = default_registry()
-    matcher = reg.load("matcher", matcher_name).instance
+    matcher = resolve_stage(reg, "matcher", matcher_name)
     errors: dict[str, list[float]] = {"wls": [], "pose-graph": []}
     aligned: dict[str, list[float]] = {"wls": [], "pose-graph": []}
     common: dict[str, list[float]] = {"wls": [], "pose-graph": []}
@@ -444,11 +437,10 @@ def synthetic_galleries(n: int, seed: int, matcher_name: str, loc_overrides: dic
         by_scan: dict[str, dict[int, float]] = {}
         solved = {}
         for lname in errors:
-            loc = reg.load("localizer", lname).instance
-            lp = localizer_params(loc, lname, loc_overrides)
-            matches = match_rounds(scans, loc, lp, cached(cache, lambda i, j, guess, g=g: match_pair(
-                matcher, matcher.Params(), scans, seed * 1000 + g, i, j, guess)))
-            poses = solved[lname] = loc.localize(scans, matches, lp)
+            loc = resolve_stage(reg, "localizer", lname, (loc_overrides or {}).get(lname))
+            matches = match_rounds(scans, loc, cached(cache, lambda i, j, guess, g=g: match_pair(
+                matcher, scans, seed * 1000 + g, i, j, guess)))
+            poses = solved[lname] = localize(loc, scans, matches)
             errs = reference_frame_errors(poses, stations, compass - yaw_true)
             by_scan[lname] = dict(zip(np.flatnonzero(poses.placed).tolist(), errs))
             errors[lname] += errs

@@ -139,7 +139,7 @@ def far_pair_scores(loaded, build, truth: SiteTruth, limit: int) -> list[dict]:
     matcher = resolve_stages(record, default_registry())["matcher"]
     rows = []
     for i, j in far:
-        m = match_pair(matcher.instance, matcher.params, build.range_scans, record.seed, i, j)
+        m = match_pair(matcher, build.range_scans, record.seed, i, j)
         finite = all(math.isfinite(v) for v in (m.dx_m, m.dy_m))
         rows.append({"i": i, "j": j, "overlap": truth.overlap(i, j), "converged": bool(m.converged),
                      "error_m": truth.pair_error(m) if finite else float("nan"), "seconds": m.seconds})

@@ -33,7 +33,7 @@ from cistern_archive.pipeline.results import (
     StageFailure,
 )
 from cistern_archive.grid.surface import wall_surface
-from cistern_archive.pipeline.runner import dimension_result
+from cistern_archive.pipeline.assemble import dimension_result
 from cistern_archive.pipeline.status import site_status
 from cistern_archive.core.scan import RangeScan, Scan
 

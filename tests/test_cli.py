@@ -47,6 +47,9 @@ def test_plugins_json_lists_builtins_with_provenance():
                 ("comparator", "mosaic")):
         assert rows[key]["status"] == "ok", rows[key]
         assert rows[key]["distribution"] == "cistern-plugins"
+    assert rows[("matcher", "correlative")]["capabilities"] == ["GuidedMatcher"]
+    assert rows[("localizer", "site-graph")]["capabilities"] == ["GuidedLocalizer"]
+    assert rows[("localizer", "wls")]["capabilities"] == []
 
 
 @pytest.mark.parametrize("matcher", ["pf-pairwise"])

@@ -9,9 +9,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cistern_archive.pipeline.contracts import MatchResult
+from cistern_archive.pipeline.checks import checked_match
+from cistern_archive.pipeline.contracts import MatchResult, StageParams
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.pipeline.runner import checked_match, match_pair
+from cistern_archive.pipeline.runner import Stage, match_pair, resolve_stage
 from cistern_archive.core.scan import RangeScan
 
 MATCHERS = ["pf-pairwise", "icp", "correlative", "particle-icp"]
@@ -51,7 +52,9 @@ class _Degenerate:
     """A matcher that always claims convergence with NaN: the runner must contain it."""
 
     name = "nan-matcher"
-    Params = None
+
+    class Params(StageParams):
+        pass
 
     def match(self, reference, moving, params, *, rng):
         return _result(dx_m=float("nan"))
@@ -59,7 +62,7 @@ class _Degenerate:
 
 def test_match_pair_contains_a_lying_matcher():
     scan = RangeScan(np.linspace(-np.pi, np.pi, 8, endpoint=False), np.ones(8), 0.0, 1.0, 5.0, 0.05, 0.05)
-    result = match_pair(_Degenerate(), None, [scan, scan], 0, 0, 1)
+    result = match_pair(Stage.of("matcher", _Degenerate()), [scan, scan], 0, 0, 1)
     assert (result.i, result.j) == (0, 1) and not result.converged and "non-finite dx_m" in result.reason
 
 
@@ -90,10 +93,9 @@ def test_every_matcher_answers_degenerate_scans_honestly(name, case):
     """Each built-in matcher on degenerate scans (against itself and against a room): no exception,
     no NaN in a converged estimate, and the JSON of the checked result is strict."""
     registry = default_registry()
-    plugin = registry.load("matcher", name)
-    params = registry.check_params("matcher", name, {"n_particles": 100} if name == "pf-pairwise" else {})
+    matcher = resolve_stage(registry, "matcher", name, {"n_particles": 100} if name == "pf-pairwise" else {})
     for other in (DEGENERATE[case](), DEGENERATE["room"]()):
-        result = match_pair(plugin.instance, params, [other, DEGENERATE[case]()], 1, 0, 1)
+        result = match_pair(matcher, [other, DEGENERATE[case]()], 1, 0, 1)
         if result.converged:
             assert np.isfinite([result.dx_m, result.dy_m, result.dyaw_rad, result.weight]).all()
         elif case in ("empty", "one beam", "no echo"):
@@ -110,6 +112,5 @@ def test_icp_and_correlative_never_return_unchecked_numbers(ranges):
     registry = default_registry()
     room = _scan(_room())
     for name in ("icp", "correlative"):
-        plugin = registry.load("matcher", name)
-        result = match_pair(plugin.instance, registry.check_params("matcher", name, {}), [room, _scan(ranges)], 0, 0, 1)
+        result = match_pair(resolve_stage(registry, "matcher", name), [room, _scan(ranges)], 0, 0, 1)
         assert not result.converged or np.isfinite([result.dx_m, result.dy_m, result.dyaw_rad]).all()

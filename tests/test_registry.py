@@ -113,3 +113,43 @@ def test_installed_defaults_name_one_plugin_per_stage():
     registry = Registry()
     for stage in GROUPS:
         assert registry.default(stage) in registry.names(stage)
+
+
+SIGNATURES = Registry({
+    "matcher": [entry("wrong-guess", "stage_plugins:WrongGuessMatcher"),
+                entry("no-guess", "stage_plugins:NoGuessMatcher")],
+    "localizer": [entry(name, f"stage_plugins:{cls}", "localizer") for name, cls in (
+        ("short-guided", "ShortGuidedLocalizer"), ("no-ties", "NoTiesLocalizer"),
+        ("extra-required", "ExtraRequiredLocalizer"))],
+})
+
+
+@pytest.mark.parametrize("stage, name, message", [
+    ("matcher", "wrong-guess", "matcher plugin 'wrong-guess': match() of GuidedMatcher takes parameter 'guess' "
+                               "by position only; the runner passes it by name"),
+    ("matcher", "no-guess", "matcher plugin 'no-guess': match() of GuidedMatcher does not take the keyword "
+                            "parameter 'guess'"),
+    ("localizer", "short-guided", "localizer plugin 'short-guided': guided_pairs() of GuidedLocalizer takes 2 "
+                                  "positional parameter(s), the runner passes 3 (scans, matches, params): "
+                                  "parameter 'params' is missing"),
+    ("localizer", "no-ties", "localizer plugin 'no-ties': localize() of Localizer does not take the keyword "
+                             "parameter 'ties'"),
+    ("localizer", "extra-required", "localizer plugin 'extra-required': localize() of Localizer has parameter "
+                                    "'depth' without a default, which the runner never passes"),
+])
+def test_a_wrong_method_signature_is_refused_at_load_naming_plugin_method_and_parameter(stage, name, message):
+    with pytest.raises(PluginError) as caught:
+        SIGNATURES.load(stage, name)
+    assert str(caught.value) == message
+    assert SIGNATURES.errors[(stage, name)] == message
+
+
+def test_capabilities_are_recorded_at_load():
+    from cistern_archive.pipeline.contracts import GuidedLocalizer, GuidedMatcher
+
+    registry = Registry()
+    assert registry.load("matcher", "correlative").capabilities == {GuidedMatcher}  # declared by subclassing
+    assert registry.load("matcher", "pf-pairwise").has(GuidedMatcher)  # structurally: match takes guess
+    assert not registry.load("matcher", "icp").capabilities
+    assert registry.load("localizer", "site-graph").has(GuidedLocalizer)
+    assert not registry.load("localizer", "wls").capabilities

@@ -99,47 +99,53 @@ def test_validate_finds_the_bundled_catalog_clean(bundled_catalog):
 
 def test_guided_round_passes_guesses_to_matchers_that_take_them(bundled_catalog, tmp_path):
     """``match_rounds``: the localizer's pairs, then its guided pairs, round after round until it asks for
-    no new pair (a pair asked for again is not matched twice); the guess reaches a matcher whose ``match``
-    takes it and is recorded on the result; a matcher without it is matched globally."""
-    from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, accepts_guess
-    from cistern_archive.pipeline.runner import match_pair, match_rounds
+    no new pair (a pair asked for again is not matched twice); the guess reaches a matcher that declares
+    ``GuidedMatcher`` and is recorded on the result; any other matcher is matched globally."""
+    from cistern_archive.pipeline.contracts import GuidedLocalizer, GuidedMatcher, MatchGuess, MatchResult
+    from cistern_archive.pipeline.runner import Stage, match_pair, match_rounds
     from cistern_plugins.pf_pairwise import PFPairwiseMatcher
+    from cistern_plugins.wls import WLSLocalizer
     from tests.stage_plugins import CompassOnlyMatcher
 
     seen = []
     rounds = []
 
-    class Localizer:
+    class Localizer(WLSLocalizer, GuidedLocalizer):
         def pairs(self, n, params):
             return [(0, 1)]
 
-        def guided_pairs(self, scans, matches, params):
+        def guided_pairs(self, scans, matches, params, *, ties=()):
             rounds.append([(m.i, m.j) for m in matches])
             return [(0, 2, MatchGuess(1.0, 2.0, 0.1, 0.5)), (1, 2, None)]
 
-    class GuessingMatcher(CompassOnlyMatcher):
+    class GuessingMatcher(CompassOnlyMatcher, GuidedMatcher):
         def match(self, reference, moving, params, *, rng, guess=None):
             seen.append(guess)
             return super().match(reference, moving, params, rng=rng)
 
-    assert accepts_guess(PFPairwiseMatcher()) and accepts_guess(GuessingMatcher())
-    assert not accepts_guess(CompassOnlyMatcher())
+    guided = Stage.of("matcher", GuessingMatcher())
+    assert guided.plugin.has(GuidedMatcher)
+    assert Stage.of("matcher", PFPairwiseMatcher()).plugin.has(GuidedMatcher)  # structurally: match takes guess
+    assert not Stage.of("matcher", CompassOnlyMatcher()).plugin.has(GuidedMatcher)
+    localizer = Stage.of("localizer", Localizer())
+    assert localizer.plugin.has(GuidedLocalizer)
+    assert not Stage.of("localizer", WLSLocalizer()).plugin.has(GuidedLocalizer)
     scans = pool_scans(bundled_catalog)
-    for matcher, expect in ((GuessingMatcher(), MatchGuess(1.0, 2.0, 0.1, 0.5)), (CompassOnlyMatcher(), None)):
+    for matcher, expect in ((guided, MatchGuess(1.0, 2.0, 0.1, 0.5)), (Stage.of("matcher", CompassOnlyMatcher()), None)):
         seen.clear()
         rounds.clear()
-        matches = match_rounds(scans, Localizer(), None, lambda i, j, g: match_pair(
-            matcher, matcher.Params(), scans, 1, i, j, g))
+        matches = match_rounds(scans, localizer, lambda i, j, g: match_pair(matcher, scans, 1, i, j, g))
         assert [(m.i, m.j) for m in matches] == [(0, 1), (0, 2), (1, 2)]
         assert rounds == [[(0, 1)], [(0, 1), (0, 2), (1, 2)]]  # the third round asked for nothing new
         assert all(isinstance(m, MatchResult) for m in matches)
         assert matches[1].guess == expect and matches[2].guess is None
         assert seen == ([None, expect, None] if expect else [])
+    plain = match_rounds(scans, Stage.of("localizer", WLSLocalizer()), lambda i, j, g: match_pair(
+        guided, scans, 1, i, j, g))
+    assert [(m.i, m.j) for m in plain] == WLSLocalizer().pairs(len(scans), WLSLocalizer.Params())
 
 
 def pool_scans(catalog: Path):
-    from cistern_archive.pipeline.runner import load_scan
-    from cistern_archive.sonar.segmentation import segment
+    from cistern_archive.pipeline.runner import range_scans
 
-    loaded = validate_record(catalog / "sites" / "lair-pool.yaml", catalog)
-    return [segment(load_scan(loaded, ref), loaded.record.segmentation) for ref in loaded.record.scans]
+    return range_scans(validate_record(catalog / "sites" / "lair-pool.yaml", catalog))

@@ -3,7 +3,7 @@ matches rejected as a set, tentative matches only with corroboration, vertical t
 
 import numpy as np
 
-from cistern_archive.pipeline.contracts import MatchResult
+from cistern_archive.pipeline.contracts import MatchResult, VerticalTie
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
 
@@ -106,13 +106,14 @@ def test_unplaced_reasons_name_stations_not_indices():
 def test_scans_at_other_depths_are_joined_by_vertical_ties_not_matches():
     loc = SiteGraphLocalizer()
     scans = _scans(4, depths=[1.0, 1.0, 2.0, 2.0])
-    p = SiteGraphParams(below={"s3": "s1"})
+    p, ties = SiteGraphParams(), [VerticalTie(lower="s3", upper="s1")]
     ms = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2), _match(1, 2, offset=(9.0, 9.0))]
-    poses = loc.localize(scans, ms, p)
+    assert not loc.localize(scans, ms, p).placed.all()  # without the tie the levels stay apart
+    poses = loc.localize(scans, ms, p, ties=ties)
     assert poses.placed.all()
     np.testing.assert_allclose(poses.xy_m[2], poses.xy_m[0], atol=0.02)  # tied: one horizontal position
-    assert {(i, j) for i, j, _ in loc.guided_pairs(scans, [], p)} == {(0, 1), (1, 0), (2, 3), (3, 2)}
-    assert loc.guided_pairs(scans, ms, p) == []  # nothing else at one level is left to try
+    assert {(i, j) for i, j, _ in loc.guided_pairs(scans, [], p, ties=ties)} == {(0, 1), (1, 0), (2, 3), (3, 2)}
+    assert loc.guided_pairs(scans, ms, p, ties=ties) == []  # nothing else at one level is left to try
 
 
 def test_marginal_covariances_are_positive_definite():

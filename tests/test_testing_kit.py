@@ -58,6 +58,20 @@ def test_check_matcher_flags_params_without_defaults():
     assert [c.name for c in report.failures()] == ["contract"]
 
 
+class _PositionalGuess(_ZeroMatcher):
+    name = "positional-guess"
+
+    def match(self, reference, moving, params, guess, /, *, rng):  # pragma: no cover - never reached
+        raise AssertionError
+
+
+def test_check_matcher_flags_a_wrong_signature_as_the_registry_would():
+    report = check_matcher(_PositionalGuess(), stream=None)
+    contract = next(c for c in report.checks if c.name == "contract")
+    assert not contract.passed
+    assert "match() of GuidedMatcher takes parameter 'guess' by position only" in contract.detail
+
+
 def test_check_matcher_passes_a_real_matcher():
     report = check_matcher(CorrelativeMatcher(), n_pairs=4, seed=0, stream=None)
     assert report.passed, report.format()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from cistern_archive.pipeline.contracts import Localizer, MatchResult
+from cistern_archive.pipeline.contracts import Localizer, MatchResult, VerticalTie
 from cistern_archive.pipeline.registry import Registry
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.wls import WLSLocalizer, WLSParams, combine, converged_measurements, estimates
@@ -157,19 +157,31 @@ def test_vertical_tie_joins_levels_and_overrides_their_match():
     ms = [m(0, 1), m(1, 0), wrong, m(2, 3, truth[3] - truth[2]), m(3, 2, truth[2] - truth[3])]
     untied = WLSLocalizer().localize(s, ms[:2] + ms[3:], WLSParams(third_scan=False))
     assert untied.placed.tolist() == [True, True, False, False]
-    tied = WLSLocalizer().localize(s, ms, WLSParams(third_scan=False, below={"s2": "s1"}))
+    tied = WLSLocalizer().localize(s, ms, WLSParams(third_scan=False), ties=[VerticalTie(lower="s2", upper="s1")])
     assert tied.placed.all()
     assert_allclose(tied.xy_m, truth, atol=1e-12)
     with pytest.raises(ValueError, match="no scan of station 'x9'"):
-        WLSLocalizer().localize(s, ms, WLSParams(below={"s2": "x9"}))
+        WLSLocalizer().localize(s, ms, WLSParams(), ties=[VerticalTie(lower="s2", upper="x9")])
 
 
 def test_runner_passes_the_records_vertical_ties(bundled_catalog):
+    """The ties reach the localizer as typed input (``localize(..., ties=...)``), not through its params."""
     from cistern_archive.catalog.loader import load_record
-    from cistern_archive.pipeline.registry import Registry
-    from cistern_archive.pipeline.runner import resolve_stages
+    from cistern_archive.pipeline.runner import Stage, localize, record_ties
 
     record = load_record(bundled_catalog / "sites" / "bell-cistern.yaml", bundled_catalog).record
-    params = resolve_stages(record, Registry())["localizer"].params
-    assert params.below == {s.station: s.below for s in record.scans if s.below}
-    assert len(params.below) == 2
+    ties = record_ties(record)
+    assert [(t.lower, t.upper) for t in ties] == [(s.station, s.below) for s in record.scans if s.below]
+    assert len(ties) == 2
+    seen = []
+
+    class Recording(WLSLocalizer):
+        def localize(self, scans, matches, params, *, ties=()):
+            seen.append(ties)
+            return super().localize(scans, matches, params, ties=ties)
+
+    poses = localize(Stage.of("localizer", Recording()), scans(2), [], ties=[])
+    assert seen == [()] and not poses.placed.any()
+    with pytest.raises(ValueError, match="no scan of station"):  # the bell's stations are not these scans
+        localize(Stage.of("localizer", Recording()), scans(2), [], ties)
+    assert seen[1] == ties

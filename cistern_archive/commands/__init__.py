@@ -16,6 +16,7 @@ from cistern_archive.core.exitcodes import (  # noqa: F401  (the commands' exit 
 COMMAND_MODULES = (
     "rebuild",
     "validate",
+    "config",
     "plugins",
     "match",
     "inspect",

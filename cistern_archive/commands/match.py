@@ -20,17 +20,15 @@ def match_files(reference: Path, moving: Path, *, matcher: str | None, params: d
     """
     from cistern_archive.catalog.models import Segmentation
     from cistern_archive.pipeline.registry import default_registry
-    from cistern_archive.pipeline.runner import match_pair
+    from cistern_archive.pipeline.runner import match_pair, resolve_stage, segment_scan
     from cistern_archive.sonar.readers import read_scans
-    from cistern_archive.sonar.segmentation import segment
 
     registry = default_registry()
     matcher = matcher or registry.default("matcher")
-    plugin = registry.load("matcher", matcher)
-    checked = registry.check_params("matcher", matcher, params)
+    stage = resolve_stage(registry, "matcher", matcher, params)
     settings = Segmentation(method=segmentation, min_range_m=min_range_m)
-    scan_a, scan_b = (segment(read_scans(path)[0], settings) for path in (reference, moving))
-    result = match_pair(plugin.instance, checked, [scan_a, scan_b], seed, 0, 1)
+    scan_a, scan_b = (segment_scan(read_scans(path)[0], settings) for path in (reference, moving))
+    result = match_pair(stage, [scan_a, scan_b], seed, 0, 1)
     return {
         "matcher": matcher,
         "reference": str(reference),

@@ -10,7 +10,8 @@ from cistern_archive.commands import EXIT_OK
 
 
 def plugin_listing() -> list[dict]:
-    """Every installed plugin, loaded to check it: stage, name, entry point, distribution, version, error."""
+    """Every installed plugin, loaded to check it: stage, name, entry point, distribution, version, the
+    optional capabilities it implements (``GuidedMatcher``, ``GuidedLocalizer``), status and error."""
     from cistern_archive.pipeline.registry import default_registry  # deferred
 
     registry = default_registry()
@@ -18,12 +19,14 @@ def plugin_listing() -> list[dict]:
     rows = []
     for info in registry.all_info():
         error = registry.errors.get((info.stage, info.name))
+        capabilities = [] if error else sorted(c.__name__ for c in registry.load(info.stage, info.name).capabilities)
         rows.append({
             "stage": info.stage,
             "name": info.name,
             "entry_point": info.value,
             "distribution": info.distribution,
             "version": info.version,
+            "capabilities": capabilities,
             "status": "error" if error else "ok",
             "error": error,
         })
@@ -42,11 +45,12 @@ def register(app: typer.Typer) -> None:
         from rich.table import Table
 
         table = Table(title="Installed plugins")
-        for column in ("stage", "name", "distribution", "version", "status"):
+        for column in ("stage", "name", "distribution", "version", "capabilities", "status"):
             table.add_column(column)
         for row in rows:
             status = "[green]ok[/]" if row["status"] == "ok" else "[red]error[/]"
-            table.add_row(row["stage"], row["name"], row["distribution"], row["version"], status)
+            table.add_row(row["stage"], row["name"], row["distribution"], row["version"],
+                          ", ".join(row["capabilities"]), status)
         console = Console()
         console.print(table)
         for row in rows:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from cistern_archive.commands import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
+from cistern_archive.commands import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from cistern_archive.core.errors import CisternError, EnvironmentProblem
 
 
@@ -108,6 +108,26 @@ class RichProgress:
         self.bar.stop()
 
 
+def print_dry_run(catalog: Path, out: Path, *, sites: list[str] | None, force: bool) -> int:
+    """Print one line per site (skip, new or rebuild, and why) and the catalog's problems; the exit code
+    (0, or 2 for catalog problems)."""
+    from cistern_archive.service.dryrun import dry_run  # the service loads when a command runs, not at CLI start
+
+    try:
+        plan = dry_run(catalog, out, sites=sites, force=force)
+    except CisternError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        return EXIT_USAGE
+    for problem in plan.catalog_problems:
+        typer.echo(problem, err=True)
+    for decision in plan.decisions:
+        typer.echo(decision.line())
+    counts = plan.counts()
+    typer.echo(f"dry run: {counts['rebuild']} to rebuild, {counts['new']} new, {counts['skip']} unchanged; "
+               "nothing written")
+    return EXIT_USAGE if plan.catalog_problems else EXIT_OK
+
+
 def register(app: typer.Typer) -> None:
     @app.command("rebuild")
     def rebuild(
@@ -120,6 +140,7 @@ def register(app: typer.Typer) -> None:
         scheduler_file: Path | None = typer.Option(None, "--scheduler-file", help="Dask scheduler file."),
         archive: Path | None = typer.Option(
             None, "--archive", help="Archive folder (default: $CISTERN_ARCHIVE, else .archive beside the catalog)."),
+        dry_run: bool = typer.Option(False, "--dry-run", help="List what would be rebuilt and why; write nothing."),
     ) -> None:
         """Rebuild every changed site into OUT/<site-id>/, then OUT/index.html and OUT/summary.json.
 
@@ -128,6 +149,8 @@ def register(app: typer.Typer) -> None:
         """
         from cistern_archive.service.rebuild import rebuild as run_rebuild
 
+        if dry_run:
+            raise typer.Exit(print_dry_run(catalog, out, sites=list(site) or None, force=force))
         progress = RichProgress(out) if sys.stderr.isatty() else PlainProgress()
         try:
             summary = run_rebuild(catalog, out, sites=list(site) or None, workers=workers, force=force,

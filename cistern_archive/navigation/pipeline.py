@@ -31,7 +31,7 @@ from cistern_archive.navigation.survey import MarinaSurvey
 from cistern_archive.navigation.track import Track
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses
 from cistern_archive.pipeline.registry import default_registry
-from cistern_archive.pipeline.runner import match_pair, match_rounds
+from cistern_archive.pipeline.runner import localize, match_pair, match_rounds, resolve_stage
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.readers.pcd import read_points
 from cistern_archive.core.scan import RangeScan
@@ -163,18 +163,16 @@ def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig()) -> S
     scans = compensated_scans(survey, track, frames, offset, config)
     timings["scans"] = time.perf_counter() - start - sum(timings.values())
     registry = default_registry()
-    matcher = registry.load("matcher", config.matcher).instance
-    localizer = registry.load("localizer", config.localizer).instance
-    matcher_params = matcher.Params.model_validate(config.matcher_params)
-    localizer_params = localizer.Params.model_validate(config.localizer_params)
+    matcher = resolve_stage(registry, "matcher", config.matcher, config.matcher_params)
+    localizer = resolve_stage(registry, "localizer", config.localizer, config.localizer_params)
 
     def run_pair(i: int, j: int, guess: MatchGuess | None) -> MatchResult:
         guess = guess or odometry_guess(scans[i], scans[j], config.consecutive_radius_m)
-        return match_pair(matcher, matcher_params, scans, config.seed, i, j, guess)
+        return match_pair(matcher, scans, config.seed, i, j, guess)
 
-    matches = match_rounds(scans, localizer, localizer_params, run_pair)
+    matches = match_rounds(scans, localizer, run_pair)
     timings["matching"] = time.perf_counter() - start - sum(timings.values())
-    poses = localizer.localize(scans, matches, localizer_params)
+    poses = localize(localizer, scans, matches)
     timings["localizer"] = time.perf_counter() - start - sum(timings.values())
     return SurveyRun(raw_track=raw, calibration=calibration, track=track, clock_offset_s=offset,
                      clock_scores=clock_scores, frames=frames, scans=scans, matches=matches, poses=poses,

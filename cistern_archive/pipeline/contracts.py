@@ -2,7 +2,9 @@
 
 Data flows one way: ``RangeScan`` → :class:`MatchResult` → :class:`Poses` → :class:`MapResult`
 → :class:`DimensionTable`. A stage plugin is an object with a ``name``, a pydantic ``Params`` model
-(``extra="forbid"``) and the method(s) of its :class:`typing.Protocol` below. Results are frozen
+(``extra="forbid"``) and the method(s) of its :class:`typing.Protocol` below, with their signatures
+(checked at load, :mod:`cistern_archive.pipeline.signatures`). Optional capabilities are protocols of
+their own (:data:`CAPABILITIES`: :class:`GuidedMatcher`, :class:`GuidedLocalizer`). Results are frozen
 dataclasses holding numpy arrays; the runner turns them into the JSON ``SiteResult``.
 
 Conventions
@@ -14,8 +16,8 @@ compass yaw relative to scan i's.
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar, Literal, Protocol, Self, runtime_checkable
 
 import numpy as np
@@ -46,6 +48,16 @@ class StageParams(BaseModel):
         return params if isinstance(params, cls) else cls.model_validate(params.model_dump())
 
 
+@dataclass(frozen=True)
+class VerticalTie:
+    """The scan of station ``lower`` was taken directly below the scan of station ``upper``: the
+    vehicle descended vertically between them, so both share one horizontal position (a record's
+    ``ScanRef.below``). The runner passes a site's ties to every localizer (:meth:`Localizer.localize`)."""
+
+    lower: str
+    upper: str
+
+
 @runtime_checkable
 class Matcher(Protocol):
     """Pair-wise scan matcher: locate ``moving`` in the frame of ``reference``."""
@@ -58,19 +70,26 @@ class Matcher(Protocol):
     ) -> MatchResult:  # pragma: no cover - protocol
         """Return the estimate of ``p_moving - p_reference`` (with ``i = j = -1``; the runner sets them).
 
-        A matcher may also take a keyword ``guess: MatchGuess | None = None`` (see :func:`accepts_guess`);
-        with a guess it searches only the window the guess gives.
+        A matcher that can search around a first estimate declares :class:`GuidedMatcher`.
         """
         ...
 
 
-def accepts_guess(matcher: object) -> bool:
-    """Whether ``matcher.match`` takes the optional ``guess`` keyword (:class:`MatchGuess`)."""
-    try:
-        parameters = inspect.signature(matcher.match).parameters  # type: ignore[attr-defined]
-    except (TypeError, ValueError, AttributeError):
-        return False
-    return "guess" in parameters
+@runtime_checkable
+class GuidedMatcher(Matcher, Protocol):
+    """Optional capability of a matcher: search only the window a :class:`MatchGuess` gives.
+
+    A matcher implements it by subclassing this protocol (``class MyMatcher(GuidedMatcher): ...``) or
+    structurally, by taking ``guess`` in ``match``; the registry checks the signature of its ``match``
+    at load (:func:`cistern_archive.pipeline.signatures.check_methods`) and the runner passes every
+    pair's ``guess`` (``None`` when the localizer has none)."""
+
+    def match(
+        self, reference: RangeScan, moving: RangeScan, params: StageParams, *, rng: np.random.Generator,
+        guess: MatchGuess | None = None,
+    ) -> MatchResult:  # pragma: no cover - protocol
+        """As :meth:`Matcher.match`; with a ``guess`` only its window is searched."""
+        ...
 
 
 @runtime_checkable
@@ -83,17 +102,33 @@ class Localizer(Protocol):
     def pairs(self, n_scans: int, params: StageParams) -> list[tuple[int, int]]:  # pragma: no cover
         """Directed pairs (i, j) the matcher must run on, in the order they should run.
 
-        A localizer may also have ``guided_pairs(scans, matches, params)``, returning a second round of
-        ``(i, j, guess)`` (``guess`` a :class:`MatchGuess` or ``None``) worked out from the first round's
-        matches; the runner matches them too and passes both rounds to :meth:`localize`
-        (:func:`cistern_archive.pipeline.runner.match_rounds`).
+        A localizer that works out further rounds of pairs from the matches so far declares
+        :class:`GuidedLocalizer`.
         """
         ...
 
     def localize(
-        self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams
+        self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+        ties: Sequence[VerticalTie] = (),
     ) -> Poses:  # pragma: no cover
-        """Place every scan it can."""
+        """Place every scan it can; ``ties`` are the record's vertical ties (:class:`VerticalTie`)."""
+        ...
+
+
+@runtime_checkable
+class GuidedLocalizer(Localizer, Protocol):
+    """Optional capability of a localizer: further rounds of pairs, worked out from a first solution.
+
+    A localizer implements it by subclassing this protocol or structurally, by defining
+    ``guided_pairs``; the registry checks the signature at load and the runner asks it round after
+    round (:func:`cistern_archive.pipeline.runner.match_rounds`)."""
+
+    def guided_pairs(
+        self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+        ties: Sequence[VerticalTie] = (),
+    ) -> list[tuple[int, int, MatchGuess | None]]:  # pragma: no cover
+        """The next round of ``(i, j, guess)`` (``guess`` a :class:`MatchGuess` or ``None``) given the
+        matches so far (none before the first round); an empty list ends the rounds."""
         ...
 
 
@@ -127,6 +162,12 @@ class Comparator(Protocol):
         so that probes given in a station's frame can be placed with ``poses``."""
         ...
 
+
+CAPABILITIES: dict[str, tuple[type, ...]] = {
+    "matcher": (GuidedMatcher,),
+    "localizer": (GuidedLocalizer,),
+}
+"""The optional capabilities of each stage: protocols a plugin declares by subclassing them."""
 
 PROTOCOLS: dict[str, type] = {
     "matcher": Matcher,

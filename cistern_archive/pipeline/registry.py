@@ -17,6 +17,7 @@ from pydantic import BaseModel, ValidationError
 from cistern_archive.catalog.models import PipelineSpec, SiteRecord, StageChoice
 from cistern_archive.core.errors import PluginError
 from cistern_archive.pipeline.contracts import PROTOCOLS, STAGES, StageParams
+from cistern_archive.pipeline.signatures import check_methods, protocol_methods
 
 GROUPS = {stage: f"cistern_archive.{stage}s" for stage in STAGES}
 DEFAULTS_GROUP = "cistern_archive.defaults"
@@ -40,10 +41,16 @@ class PluginInfo:
 
 @dataclass(frozen=True)
 class LoadedPlugin:
-    """An imported, checked plugin instance with its provenance."""
+    """An imported, checked plugin instance with its provenance and the optional capabilities it
+    implements (:data:`~cistern_archive.pipeline.contracts.CAPABILITIES`, checked at load)."""
 
     info: PluginInfo
     instance: Any
+    capabilities: frozenset[type] = frozenset()
+
+    def has(self, capability: type) -> bool:
+        """Whether the plugin implements ``capability`` (e.g. :class:`~cistern_archive.pipeline.contracts.GuidedMatcher`)."""
+        return capability in self.capabilities
 
     @property
     def params_model(self) -> type[BaseModel]:
@@ -117,8 +124,19 @@ class Registry:
         return named if named is not None else StageChoice(plugin=self.default(stage))
 
     def resolve(self, record: SiteRecord) -> SiteRecord:
-        """The record with every stage named (the form ``record.json`` stores and build keys hash)."""
-        choices = {stage: self.choice(record.pipeline, stage) for stage in STAGES}
+        """The record as it runs: every stage named, each with its plugin's validated parameters,
+        defaults filled in (the form ``record.json`` stores and ``cistern-archive config`` prints).
+
+        Raises
+        ------
+        PluginError
+            A stage's plugin is unknown or fails to load, or its parameters are refused.
+        """
+        choices = {}
+        for stage in STAGES:
+            choice = self.choice(record.pipeline, stage)
+            params = self.check_params(stage, choice.plugin, choice.params)
+            choices[stage] = StageChoice(plugin=choice.plugin, params=params.model_dump(mode="json"))
         return record.model_copy(update={"pipeline": PipelineSpec(**choices)})
 
     def all_info(self) -> list[PluginInfo]:
@@ -144,8 +162,7 @@ class Registry:
         info = self.info(stage, name)
         try:
             obj = self._entry_point(stage, name).load()
-            instance = obj() if isinstance(obj, type) else obj
-            _check_contract(stage, name, instance)
+            loaded = checked_plugin(stage, obj() if isinstance(obj, type) else obj, info)
         except PluginError as exc:
             self.errors[key] = str(exc)
             raise
@@ -154,7 +171,6 @@ class Registry:
             message += f"{type(exc).__name__}: {exc}"
             self.errors[key] = message
             raise PluginError(message) from exc
-        loaded = LoadedPlugin(info=info, instance=instance)
         self._loaded[key] = loaded
         return loaded
 
@@ -181,11 +197,26 @@ class Registry:
             raise PluginError(f"{stage} plugin {name!r}: bad params: {details}") from None
 
 
-def _check_contract(stage: str, name: str, instance: Any) -> None:
+def checked_plugin(stage: str, instance: Any, info: PluginInfo | None = None) -> LoadedPlugin:
+    """``instance`` checked against its stage's protocol (members, method signatures, the capabilities
+    it implements, a ``Params`` model with defaults for every field), as a :class:`LoadedPlugin`.
+
+    ``info`` defaults to an unregistered plugin named after ``instance.name`` (benchmarks and tests run
+    plugin objects that no entry point names).
+
+    Raises
+    ------
+    PluginError
+        Naming the plugin and what is wrong.
+    """
+    name = info.name if info is not None else str(getattr(instance, "name", type(instance).__name__))
+    info = info or PluginInfo(stage=stage, name=name, value=f"{type(instance).__module__}:{type(instance).__name__}",
+                              distribution="unregistered", version="unknown")
     protocol = PROTOCOLS[stage]
     if not isinstance(instance, protocol):
-        missing = [m for m in ("name", "Params", *_methods(protocol)) if not hasattr(instance, m)]
+        missing = [m for m in ("name", "Params", *protocol_methods(protocol)) if not hasattr(instance, m)]
         raise PluginError(f"{stage} plugin {name!r} does not implement {protocol.__name__}: missing {missing}")
+    capabilities = check_methods(stage, name, instance)
     params = getattr(instance, "Params", None)
     if not (isinstance(params, type) and issubclass(params, BaseModel)):
         raise PluginError(f"{stage} plugin {name!r}: Params must be a pydantic model class")
@@ -193,10 +224,7 @@ def _check_contract(stage: str, name: str, instance: Any) -> None:
         params()
     except ValidationError as exc:
         raise PluginError(f"{stage} plugin {name!r}: Params must have defaults for every field: {exc}") from None
-
-
-def _methods(protocol: type) -> list[str]:
-    return [m for m in ("match", "pairs", "localize", "build", "compare") if hasattr(protocol, m)]
+    return LoadedPlugin(info=info, instance=instance, capabilities=capabilities)
 
 
 _default: Registry | None = None

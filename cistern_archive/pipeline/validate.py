@@ -117,3 +117,23 @@ def validate_catalog(catalog: Path, registry: Registry | None = None, *,
         seen[site_id] = path
         report.records.append(loaded)
     return report
+
+
+def find_site(catalog: Path, site_id: str, registry: Registry | None = None) -> LoadedRecord:
+    """The valid record of ``site_id`` in ``catalog`` (plugins and parameters checked).
+
+    Raises
+    ------
+    CatalogError
+        No valid record has this id: the problems of the record files named after the site (the record
+        is invalid) or, when there are none, the ids of the valid records.
+    """
+    report = validate_catalog(Path(catalog), registry)
+    for loaded in report.records:
+        if loaded.record.id == site_id:
+            return loaded
+    own = [p for p in report.problems if Path(p.split(":", 1)[0]).stem == site_id]
+    if own:
+        raise CatalogError(own + [f"{catalog}: the record of site {site_id!r} is invalid"])
+    known = ", ".join(sorted(r.record.id for r in report.records)) or "none"
+    raise CatalogError([f"{catalog}: no valid site record with id {site_id!r} (valid: {known})"])

@@ -3,7 +3,8 @@
 It runs a matcher plugin through the checks the pipeline relies on and prints a report:
 
 1. **contract** — the object satisfies the :class:`~cistern_archive.pipeline.contracts.Matcher`
-   Protocol, has a ``name``, a pydantic ``Params`` derived from ``StageParams`` whose fields all have
+   Protocol with the registry's signature checks (and those of ``GuidedMatcher`` when it implements
+   it), has a ``name``, a pydantic ``Params`` derived from ``StageParams`` whose fields all have
    defaults and which refuses unknown keys;
 2. **result type** — ``match`` returns a :class:`~cistern_archive.pipeline.contracts.MatchResult` with
    finite ``seconds``, a bool ``converged``, a reason whenever it did not converge, and finite
@@ -26,7 +27,9 @@ from typing import Any, TextIO
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
+from cistern_archive.core.errors import PluginError
 from cistern_archive.pipeline.contracts import Matcher, MatchResult, StageParams
+from cistern_archive.pipeline.registry import checked_plugin
 from cistern_archive.simulation.pairs import SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import PairScore, score
 
@@ -115,6 +118,11 @@ def _check_contract(instance: Any) -> Check:
     problems = []
     if not isinstance(instance, Matcher):
         problems.append("does not implement the Matcher protocol (name, Params, match)")
+    else:
+        try:
+            checked_plugin("matcher", instance)  # what the registry checks at load: signatures, capabilities
+        except PluginError as exc:
+            problems.append(str(exc))
     params = getattr(instance, "Params", None)
     if not (isinstance(params, type) and issubclass(params, BaseModel)):
         problems.append("Params is not a pydantic model class")

@@ -37,7 +37,7 @@ import numpy as np
 from pydantic import Field
 from scipy import ndimage
 
-from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import GuidedMatcher, MatchGuess, MatchResult, StageParams
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.alignment import (
     ConvergenceParams,
@@ -218,7 +218,7 @@ def _greedy_descent(pyr: "PaddedPyramid", point_cells: np.ndarray, node: np.ndar
     return float(pyr.score(0, point_cells, node[None, :2], node[None, 2])[0])
 
 
-class CorrelativeMatcher:
+class CorrelativeMatcher(GuidedMatcher):
     """Exhaustive multi-resolution correlative matcher with branch and bound (the ``correlative`` matcher)."""
 
     name: ClassVar[str] = "correlative"

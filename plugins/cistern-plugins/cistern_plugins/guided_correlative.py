@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import Field
 from scipy import ndimage
 
-from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import GuidedMatcher, MatchGuess, MatchResult, StageParams
 from cistern_archive.core.scan import RangeScan
 
 
@@ -136,7 +136,7 @@ def _ambiguity(scores: np.ndarray, offsets: np.ndarray, best_xy: np.ndarray, dis
     return float(over_yaw[far].max()) if far.any() else 0.0
 
 
-class GuidedCorrelativeMatcher:
+class GuidedCorrelativeMatcher(GuidedMatcher):
     """Coarse-to-fine correlative matching around a guess (the ``guided-correlative`` matcher)."""
 
     name: ClassVar[str] = "guided-correlative"

@@ -44,7 +44,8 @@ import numpy as np
 from pydantic import Field
 
 from cistern_archive.navigation.track import OdometryNoise, relative_covariance, se2_between
-from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
+from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, MatchResult, Poses, StageParams,
+                                                VerticalTie)
 from cistern_archive.core.scan import RangeScan, wrap_angle
 
 SCALE_KEY = gtsam.symbol("s", 0)
@@ -237,7 +238,7 @@ def solve(scans: Sequence[RangeScan], matches: Sequence[MatchResult], p: NavGrap
     return nodes, values, kept, graph
 
 
-class NavGraphLocalizer:
+class NavGraphLocalizer(GuidedLocalizer):
     """Pose graph over odometry, compass and scan matches with calibration (the ``nav-graph`` localizer)."""
 
     name: ClassVar[str] = "nav-graph"
@@ -248,8 +249,8 @@ class NavGraphLocalizer:
         p = NavGraphParams.of(params)
         return [(k, k + 1) for k in range(n_scans - 1)] if p.consecutive else []
 
-    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
-                     params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
+    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                     ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
         """Loop-closure candidates from the first round's solution (module docstring)."""
         p = NavGraphParams.of(params)
         if p.loop_per_scan == 0:
@@ -276,8 +277,10 @@ class NavGraphLocalizer:
                 out.append((i, j, MatchGuess(dx, dy, dyaw, radius)))
         return out
 
-    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
-        """Place every scan with odometry; the calibration estimate is in :func:`calibration_of`."""
+    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                 ties: Sequence[VerticalTie] = ()) -> Poses:
+        """Place every scan with odometry; the calibration estimate is in :func:`calibration_of`. The vertical ``ties`` are not used: this
+        localizer places the scans of one depth level."""
         p = NavGraphParams.of(params)
         n = len(scans)
         yaw = np.array([s.yaw_rad for s in scans], dtype=np.float64)

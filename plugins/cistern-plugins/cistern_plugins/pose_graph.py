@@ -41,7 +41,8 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
+from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, MatchResult, Poses, StageParams,
+                                                VerticalTie)
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, spanning_tree
 
@@ -55,7 +56,7 @@ class PoseGraphParams(GraphParams):
     guess_radius_m: float = Field(0.5, gt=0)
 
 
-class PoseGraphLocalizer:
+class PoseGraphLocalizer(GuidedLocalizer):
     """Sliding-window pose graph with robust factors and marginal covariances (the ``pose-graph`` localizer)."""
 
     name: ClassVar[str] = "pose-graph"
@@ -67,8 +68,8 @@ class PoseGraphLocalizer:
         p = PoseGraphParams.of(params)
         return _pairs(n_scans, range(1, (1 if p.guided else p.window) + 1), p)
 
-    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
-                     params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
+    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                     ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
         """The pairs 2 to ``window`` scans apart, each with the guess of the neighbours' solution (none
         when ``guided`` is off, as :meth:`pairs` then asked for them all)."""
         p = PoseGraphParams.of(params)
@@ -90,8 +91,10 @@ class PoseGraphLocalizer:
             out.append((i, j, guess))
         return out
 
-    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
-        """Place every scan connected to the reference by converged matches."""
+    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                 ties: Sequence[VerticalTie] = ()) -> Poses:
+        """Place every scan connected to the reference by converged matches. The vertical ``ties`` are not used: this
+        localizer places the scans of one depth level."""
         p = PoseGraphParams.of(params)
         n = len(scans)
         good = _usable(matches, n)

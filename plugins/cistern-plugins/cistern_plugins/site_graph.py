@@ -13,7 +13,7 @@ builds a graph over the whole site instead, in three steps.
    global match (no guess, both ways) with the nearest station of another group not tried yet, up to
    ``global_gap`` stations away.
    Scans more than ``level_tolerance_m`` apart in depth are never matched: at different depths of a
-   bell-shaped cistern the walls differ, and the record's vertical ties (``below``) join the levels.
+   bell-shaped cistern the walls differ, and the record's vertical ties (``ties``) join the levels.
 
 2. **Consistent matches as a set** (:func:`consistent_edges`). Every converged match is an edge. An
    edge gains support from every cycle it closes consistently: the reverse match of the same pair that
@@ -50,7 +50,8 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
+from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, MatchResult, Poses, StageParams,
+                                                VerticalTie)
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, wrap
 from cistern_plugins.factor_graph import spanning_tree
@@ -73,8 +74,6 @@ class SiteGraphParams(GraphParams):
                                      "two groups of scans (matches without a confidence always may)")
     tentative_variance_factor: float = Field(25.0, ge=1, description="a tentative match's covariance is "
                                              "inflated by this, so converged matches dominate where they exist")
-    below: dict[str, str] = Field(default_factory=dict,
-                                  description="vertical ties: station -> station it was taken directly below")
 
 
 @dataclass
@@ -92,7 +91,7 @@ class Graph:
         return [k for k, h in enumerate(self.group) if h == g]
 
 
-class SiteGraphLocalizer:
+class SiteGraphLocalizer(GuidedLocalizer):
     """Site-wide graph of consistent matches, solved by robust least squares (the ``site-graph`` localizer)."""
 
     name: ClassVar[str] = "site-graph"
@@ -112,8 +111,8 @@ class SiteGraphLocalizer:
                     out += [(i, i + gap, None), (i + gap, i, None)]
         return out
 
-    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
-                     params: StageParams) -> list[tuple[int, int, MatchGuess | None]]:
+    def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                     ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
         """The first round (:meth:`first_pairs`) when nothing was matched yet; then loop candidates
         within reach of the solution so far (with a guess) and global matches for the scans not yet
         joined to the rest (module docstring, step 1)."""
@@ -121,7 +120,7 @@ class SiteGraphLocalizer:
         n = len(scans)
         if not matches:
             return self.first_pairs(scans, p)
-        graph = consistent_edges(scans, matches, p)
+        graph = consistent_edges(scans, matches, p, ties)
         tried = {frozenset((m.i, m.j)) for m in matches}
         out: list[tuple[int, int, MatchGuess | None]] = []
         for i in range(n):
@@ -156,11 +155,12 @@ class SiteGraphLocalizer:
                     break
         return out
 
-    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
+    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                 ties: Sequence[VerticalTie] = ()) -> Poses:
         """Place every scan a consistent chain of matches joins to the reference (module docstring)."""
         p = SiteGraphParams.of(params)
         n = len(scans)
-        graph = consistent_edges(scans, matches, p)
+        graph = consistent_edges(scans, matches, p, ties)
         main = _largest_group(graph)
         members = graph.members(main)
         reference = min(members) if members and (len(members) > 1 or n == 1) else -1
@@ -208,18 +208,19 @@ def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     return [e for e, _, _ in out.values()], [s for _, s, _ in out.values()], [c for _, _, c in out.values()]
 
 
-def tie_edges(scans: Sequence[RangeScan], p: SiteGraphParams) -> list[Edge]:
+def tie_edges(scans: Sequence[RangeScan], ties: Sequence[VerticalTie], p: SiteGraphParams) -> list[Edge]:
     """The record's vertical ties as edges of zero displacement."""
     cov = np.diag([p.tie_sigma_m**2, p.tie_sigma_m**2, math.radians(p.compass_sigma_deg) ** 2])
-    return [Edge(a, b, np.zeros(3), cov) for a, b in vertical_ties(scans, p.below)]
+    return [Edge(a, b, np.zeros(3), cov) for a, b in vertical_ties(scans, ties)]
 
 
-def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult], p: SiteGraphParams) -> Graph:
+def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult], p: SiteGraphParams,
+                     vertical: Sequence[VerticalTie] = ()) -> Graph:
     """Step 2 of the module docstring: cycle support, then greedy consensus merging of scan groups."""
     n = len(scans)
     edges, strong, confidence = match_edges(scans, matches, p)
     confident = [c is None or c >= p.bridge_confidence for c in confidence]
-    ties = tie_edges(scans, p)
+    ties = tie_edges(scans, vertical, p)
     support = cycle_support(edges, strong, p)
     graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
     for t in ties:

@@ -38,8 +38,8 @@ replaces any match of that pair (scans at different depths of a bell-shaped cist
 outlines, so a match between them is not a measurement of their displacement) and joins the depth
 levels, each of which is otherwise localised from its own matches. This is the record-level form of the
 paper's manual alignment of depth levels ("manual mosaicking was used to align the scans in the third
-dimension"). ``below`` maps station → station above; the pipeline runner fills it from the record's
-scans when the record's pipeline does not set it.
+dimension"). The pipeline runner passes the record's ties to :meth:`WLSLocalizer.localize`
+(``ties``, :class:`~cistern_archive.pipeline.contracts.VerticalTie`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams
+from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams, VerticalTie
 from cistern_archive.core.scan import RangeScan
 
 
@@ -63,9 +63,6 @@ class WLSParams(StageParams):
     solve: Literal["chain", "global"] = "chain"
     min_weight: float = Field(1e-3, gt=0, description="floor of a converged measurement's weight")
     use_yaw: bool = Field(True, description="apply the matcher's heading corrections")
-    below: dict[str, str] = Field(
-        default_factory=dict, description="vertical ties: station -> station it was taken directly below"
-    )
     tie_weight: float = Field(10.0, gt=0, description="weight of a vertical tie (a converged match is ~0.3-0.9)")
 
 
@@ -89,17 +86,19 @@ class WLSLocalizer:
                 out += [(i, i + gap), (i + gap, i)]
         return out
 
-    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams) -> Poses:
-        """Eq. 10 for every neighbouring pair, then place the scans from the reference (Table III)."""
+    def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
+                 ties: Sequence[VerticalTie] = ()) -> Poses:
+        """Eq. 10 for every neighbouring pair and the vertical ``ties``, then place the scans from the
+        reference (Table III)."""
         p = WLSParams.of(params)
         n = len(scans)
         z = converged_measurements(matches, p.min_weight)
         reasons = _pair_reasons(matches)
-        ties = vertical_ties(scans, p.below)
-        for a, b in ties:
+        tied = vertical_ties(scans, ties)
+        for a, b in tied:
             z[(a, b)] = z[(b, a)] = (np.zeros(3), p.tie_weight)
         edges = {(i, i + 1): combine(i, i + 1, z, n) for i in range(n - 1)}
-        edges.update({(a, b): combine(a, b, z, n) for a, b in ties})
+        edges.update({(a, b): combine(a, b, z, n) for a, b in tied})
         if p.solve == "global":
             edges.update({(i, j): combine(i, j, z, n) for (i, j) in z if i < j and (i, j) not in edges})
         edges = {k: v for k, v in edges.items() if v is not None}
@@ -119,17 +118,17 @@ class WLSLocalizer:
         return Poses(xy_m=xy, yaw_rad=yaw, placed=placed, reasons=why, reference=ref)
 
 
-def vertical_ties(scans: Sequence[RangeScan], below: dict[str, str]) -> list[tuple[int, int]]:
-    """Index pairs ``(min, max)`` of the scans tied by ``below`` (station -> station above).
+def vertical_ties(scans: Sequence[RangeScan], ties: Sequence[VerticalTie]) -> list[tuple[int, int]]:
+    """Index pairs ``(min, max)`` of the scans joined by ``ties``, in the order of the ties' stations.
 
     Raises
     ------
     ValueError
-        A station named in ``below`` is not one of the scans.
+        A station named in a tie is not one of the scans.
     """
     index = {s.station: k for k, s in enumerate(scans)}
     out = []
-    for lower, upper in sorted(below.items()):
+    for lower, upper in sorted((t.lower, t.upper) for t in ties):
         missing = [name for name in (lower, upper) if name not in index]
         if missing:
             raise ValueError(f"vertical tie {lower!r} below {upper!r}: no scan of station {missing[0]!r}")

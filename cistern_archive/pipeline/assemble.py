@@ -1,0 +1,133 @@
+"""The JSON result of a site (:class:`~cistern_archive.pipeline.results.SiteResult`) from whatever its
+build reached: scan poses, pairs, the dimension table with intervals and weak flags, status, provenance."""
+
+from __future__ import annotations
+
+import math
+import platform
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from cistern_archive import __version__
+from cistern_archive.catalog.loader import LoadedRecord
+from cistern_archive.catalog.models import SiteRecord
+from cistern_archive.pipeline.contracts import DimensionRow, Poses
+from cistern_archive.pipeline.intervals import ci95_half_width
+from cistern_archive.pipeline.results import (
+    DimensionResult,
+    PairResult,
+    PluginProvenance,
+    Provenance,
+    ScanPose,
+    SiteBuild,
+    SiteResult,
+    finite_or_none,
+)
+from cistern_archive.pipeline.status import label_indices, site_status, weakness
+
+
+def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[PluginProvenance],
+                    timings: Mapping[str, float]) -> SiteResult:
+    """Fill the JSON result from whatever the build reached; ``plugins`` are the resolved stages'
+    provenance, ``timings`` the seconds each step took."""
+    record = loaded.record
+    result = build.result.model_copy()
+    truth = {t.station: t for t in record.truth}
+    poses = build.poses
+    labels = [ref.station for ref in record.scans]
+    scans = []
+    for k, ref in enumerate(record.scans):
+        raw = build.raw_scans[k] if k < len(build.raw_scans) else None
+        placed = bool(poses is not None and poses.placed[k])
+        sigma = (None, None)
+        if placed and poses.covariance is not None:
+            sigma = (finite_or_none(math.sqrt(poses.covariance[k, 0, 0])),
+                     finite_or_none(math.sqrt(poses.covariance[k, 1, 1])))
+        t = truth.get(ref.station)
+        scans.append(ScanPose(
+            index=k, id=ref.station, file=ref.file,
+            x_m=finite_or_none(poses.xy_m[k, 0]) if placed else None,
+            y_m=finite_or_none(poses.xy_m[k, 1]) if placed else None,
+            yaw_rad=float(poses.yaw_rad[k]) if poses is not None else (raw.yaw_rad if raw else 0.0),
+            depth_m=raw.depth_m if raw else (ref.depth_m or 0.0),
+            placed=placed,
+            reason=label_indices(poses.reasons[k] if poses is not None else "not localized: " + (result.error or ""),
+                                 labels),
+            sigma_x_m=sigma[0], sigma_y_m=sigma[1],
+            truth_x_m=t.x_m if t else None, truth_y_m=t.y_m if t else None,
+        ))
+    result.scans = scans
+    result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
+    result.pairs = [
+        PairResult(i=m.i, j=m.j, dx_m=finite_or_none(m.dx_m), dy_m=finite_or_none(m.dy_m), dyaw_rad=finite_or_none(m.dyaw_rad),
+                   weight=finite_or_none(m.weight) or 0.0, confidence=finite_or_none(m.confidence), tentative=m.tentative,
+                   converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason,
+                   guess=None if m.guess is None else [m.guess.dx_m, m.guess.dy_m, m.guess.dyaw_rad, m.guess.radius_m])
+        for m in build.matches
+    ]
+    if build.table is not None:
+        result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels,
+                                              cell_m=_cell_at(build, row.depth_m), poses=poses)
+                             for k, row in enumerate(build.table.rows)]
+        result.dimension_stats = {k: finite_or_none(v) for k, v in sorted(build.table.stats.items())}
+    if build.map_result is not None:
+        result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
+    result.status, result.status_reasons = site_status(
+        failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
+        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [])
+    result.timings_s = dict(timings)
+    result.timings_s["total"] = round(sum(timings.values()), 6)
+    result.provenance = Provenance(
+        code_version=__version__,
+        plugins=list(plugins),
+        seeds={"site": record.seed},
+        record_file=str(loaded.path.relative_to(loaded.root)) if loaded.path.is_relative_to(loaded.root) else str(loaded.path),
+        python=platform.python_version(),
+        numpy=np.__version__,
+    )
+    return result
+
+
+def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
+    """How many probes the record asked for the ``k``-th row (by position when it matches the
+    reference, else by name and kind; 0 when no reference matches)."""
+    refs = record.references
+    if k < len(refs) and refs[k].name == row.name and refs[k].kind == row.reference_kind:
+        return refs[k].measure.repeats
+    same = [r for r in refs if r.name == row.name and r.kind == row.reference_kind]
+    return same[0].measure.repeats if same else 0
+
+
+def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *, cell_m: float | None = None,
+                     poses: Poses | None = None) -> DimensionResult:
+    """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`)
+    and with its 95 % interval (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of
+    ``cell_m``) when it is measured."""
+    map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
+    weak = weakness(len(row.probes), requested, std) if map_m is not None else ""
+    ci = None if map_m is None or cell_m is None else ci95_half_width(
+        row.probes, cell_m, [line for line in row.probe_lines if line is not None], poses)
+    return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
+                           reference_kind=row.reference_kind, diff_m=finite_or_none(row.diff_m),
+                           depth_m=finite_or_none(row.depth_m) or 0.0, probe_std_m=std,
+                           probes_m=[float(p) for p in row.probes], probes_requested=requested,
+                           weak=bool(weak), weak_reason=weak, note=label_indices(row.note, labels))
+
+
+def _cell_at(build: SiteBuild, depth_m: float) -> float | None:
+    """Cell size of the slice nearest ``depth_m``."""
+    grids = build.map_result.grids if build.map_result is not None else ()
+    return min(grids, key=lambda g: abs(g.depth_m - depth_m)).cell_m if grids else None
+
+
+def _unmeasured(record: SiteRecord, dimensions: Sequence[DimensionResult]) -> list[str]:
+    """``name (kind): reason`` of every reference the table has no measured value for."""
+    measured = {(d.name, d.reference_kind) for d in dimensions if d.map_m is not None}
+    notes = {(d.name, d.reference_kind): d.note for d in dimensions}
+    out = []
+    for ref in record.references:
+        if (ref.name, ref.kind) not in measured:
+            note = notes.get((ref.name, ref.kind)) or "no wall found"
+            out.append(f"{ref.name} ({ref.kind}): {note}")
+    return out
