@@ -10,7 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from cistern_archive.grid.evidence import SonarModel, dense_scan_map, scan_window
-from cistern_archive.grid.export import grid_image, npz_bytes, png_bytes, read_npz, write_npz, write_png
+from cistern_archive.pipeline.export import grid_image, npz_bytes, png_bytes, read_npz, write_npz, write_png
 from cistern_archive.grid.polygon import polygon_scan, rectangle
 from cistern_archive.grid.raycast import OccupancyLookup, distance_field
 from cistern_archive.grid.tiles import TiledGrid
@@ -193,5 +193,7 @@ def test_png_refuses_bad_arrays():
 def test_grid_image_orientation():
     lo = np.zeros((2, 3), np.float32)
     lo[0, 0] = 4.0  # lower-left cell occupied
+    lo[0, 2] = -4.0  # lower-right cell free
     img = grid_image(EvidenceGrid(lo, (0.0, 0.0), 0.05, 0.0))
-    assert img[1, 0] > 200 and img[0, 0] == 128
+    # north up; black occupied, white free, grey unknown (the map figure's polarity)
+    assert img[1, 0] < 10 and img[1, 2] > 245 and img[0, 0] == 128 and img[1, 1] == 128
