@@ -185,6 +185,18 @@ def test_png_and_npz_are_deterministic_and_readable(tmp_path):
     assert back.origin_xy_m == pytest.approx(grids[0].origin_xy_m) and back.cell_m == grids[0].cell_m
 
 
+def test_read_npz_names_a_file_of_another_layout(tmp_path):
+    from cistern_archive.core.errors import CisternError
+
+    other = tmp_path / "other.npz"
+    other.write_bytes(npz_bytes({"depths_m": np.array([1.5]), "log_odds_0": np.zeros((2, 2), np.float32)}))
+    with pytest.raises(CisternError, match=r"other\.npz: not a grid archive of this layout \(missing cell_m"):
+        read_npz(other)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(CisternError, match=r"junk\.npz: cannot read the grid archive"):
+        read_npz(tmp_path / "junk.npz")
+
+
 def test_png_refuses_bad_arrays():
     with pytest.raises(ValueError):
         png_bytes(np.zeros((2, 2), np.float32))

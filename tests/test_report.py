@@ -358,7 +358,9 @@ def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
     again.mkdir()
     capfd.readouterr()
     build = make_site_build(**SITES["pool"])
-    write_site_result(build, again, render_site(build, again))
+    written = render_site(build, again)
+    assert not (again / "result.json").exists() and not (again / "record.json").exists()  # the caller's
+    write_site_result(build, again, written)
     out, err = capfd.readouterr()
     assert out == "" and err == ""  # no X / VTK warnings on a machine without a display
 

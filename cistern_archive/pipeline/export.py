@@ -34,7 +34,7 @@ from cistern_archive.core.errors import CisternError
 from cistern_archive.core.files import write_bytes_atomic
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.scan import compass_deg_from_yaw
-from cistern_archive.pipeline.results import SiteResult
+from cistern_archive.pipeline.results import DimensionResult, SiteResult
 
 GRID_NPZ = "grid.npz"
 GRIDS_CSV = "grids.csv"
@@ -196,13 +196,18 @@ def _station(result: SiteResult, k: int) -> str:
     return result.scans[k].id if 0 <= k < len(result.scans) and result.scans[k].id else f"scan {k}"
 
 
+def diff_percent(dimension: DimensionResult) -> float | None:
+    """The map's signed difference from the reference as a percentage of the reference."""
+    return None if dimension.diff_m is None else 100.0 * dimension.diff_m / dimension.reference_m
+
+
 def dimensions_table(result: SiteResult) -> tuple[list[str], list[list[Any]]]:
     """Map against reference for every measured dimension; ``probes_m`` is ``;``-separated."""
     header = ["name", "reference_kind", "depth_m", "map_m", "ci95_m", "reference_m", "diff_m", "diff_percent",
               "probe_std_m", "n_probes", "probes_m"]
-    rows = [[d.name, d.reference_kind, d.depth_m, d.map_m, d.ci95_m, d.reference_m, d.diff_m,
-             None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m, d.probe_std_m, len(d.probes_m),
-             ";".join(format_number(p, 4) for p in d.probes_m)] for d in result.dimensions]
+    rows = [[d.name, d.reference_kind, d.depth_m, d.map_m, d.ci95_m, d.reference_m, d.diff_m, diff_percent(d),
+             d.probe_std_m, len(d.probes_m), ";".join(format_number(p, 4) for p in d.probes_m)]
+            for d in result.dimensions]
     return header, rows
 
 

@@ -9,6 +9,7 @@ from typing import Any
 from cistern_archive import __version__
 from cistern_archive.core.scan import compass_deg_from_yaw
 from cistern_archive.evaluation import scan_position_errors
+from cistern_archive.pipeline.export import diff_percent
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report import viewer
@@ -81,9 +82,9 @@ def _figure_view(f: FigureFile, anchor: str, site_dir: Path) -> dict[str, Any]:
 def _dimension_rows(result: SiteResult) -> list[dict[str, str]]:
     rows = []
     for d in result.dimensions:
-        percent = None if d.diff_m is None else 100.0 * d.diff_m / d.reference_m
-        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2), "map": with_interval(d.map_m, d.ci95_m),
-                     "reference": number(d.reference_m), "diff": signed(d.diff_m), "percent": signed(percent, 2),
+        rows.append({"name": d.name, "kind": d.reference_kind, "depth": number(d.depth_m, 2),
+                     "map": with_interval(d.map_m, d.ci95_m), "reference": number(d.reference_m),
+                     "diff": signed(d.diff_m), "percent": signed(diff_percent(d), 2),
                      "std": number(d.probe_std_m), "probes": probe_count(d), "weak": d.weak,
                      "note": "; ".join(n for n in (d.weak_reason and f"weak: {d.weak_reason}", d.note) if n)})
     return rows
@@ -158,8 +159,10 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     figures.update({key: views[id(f)] for key, f in single})
     figure_anchor = {f.key: views[id(f)]["anchor"] for f in drawn["pairs"]}
     pair_anchor = {pair: figure_anchor[keys[-1]] for pair, keys in drawn["pair_keys"].items() if keys}
-    pairs = [{"label": f"{station_label(labels, p.i)} → {station_label(labels, p.j)}", "dx": signed(p.dx_m), "dy": signed(p.dy_m),
-              "dyaw": signed(None if p.dyaw_rad is None else math.degrees(p.dyaw_rad), 2), "weight": number(p.weight, 3),
+    pairs = [{"label": f"{station_label(labels, p.i)} → {station_label(labels, p.j)}",
+              "dx": signed(p.dx_m), "dy": signed(p.dy_m),
+              "dyaw": signed(None if p.dyaw_rad is None else math.degrees(p.dyaw_rad), 2),
+              "weight": number(p.weight, 3),
               "converged": "yes" if p.converged else "no", "iterations": str(p.iterations),
               "reason": p.reason or "—",
               "figure": (p.i, p.j) in pair_anchor, "anchor": pair_anchor.get((p.i, p.j), "")}
