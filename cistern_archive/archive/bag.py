@@ -29,6 +29,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import bagit
+
+from cistern_archive import __version__
+from cistern_archive.archive.preservation import write_preservation
 from cistern_archive.archive.repository import Archive
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.core.errors import CisternError
@@ -106,10 +110,6 @@ def check_bag_target(bag: Path, site_id: str) -> bool:
 
 def bag_info(loaded: LoadedRecord, build_key: str, built_at: str | None) -> dict[str, str]:
     """The ``bag-info.txt`` fields of a site's bag."""
-    import bagit
-
-    from cistern_archive import __version__
-
     record = loaded.record
     info = {
         "External-Identifier": record.id,
@@ -162,10 +162,6 @@ def pack_bag(staged: Path, *, site_dir: Path, build_info: dict[str, Any], loaded
     int
         The number of payload files.
     """
-    import bagit
-
-    from cistern_archive.archive.preservation import write_preservation
-
     site_id, key = loaded.record.id, build_info["build_key"]
     material = build_info.get("key_material") or {}
     wanted = {loaded.path.resolve().relative_to(loaded.root).as_posix(), *(material.get("inputs") or {})}
