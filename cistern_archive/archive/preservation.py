@@ -8,7 +8,7 @@ thing:
 - ``dimensions.csv``, ``pairs.csv``, ``scans.csv`` — the tables of the site's ``result.json``;
 - ``grid-<k>.png`` and ``grids.csv`` — every evidence-grid slice of ``grid.npz`` (black occupied,
   white free, grey unknown; north up) with its georeference;
-- ``model.ply`` — the published 3D model (map frame, metres, z up);
+- ``model.ply`` — the published 3D model (map frame, metres, z up), when the report exported one;
 - ``raw-scans.csv`` and ``scans/<station>.csv`` — every raw scan (settings; bearing and intensities,
   one row per beam, one column per range bin), read from the raw inputs given.
 """
