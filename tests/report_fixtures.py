@@ -272,6 +272,7 @@ SITES = {
 
 def render_catalog(root: Path) -> dict[str, dict[str, str]]:
     """Render the synthetic sites of :data:`SITES` and the index under ``root``; artifacts per site."""
+    from cistern_archive.pipeline.runner import write_site_result
     from cistern_archive.report import IndexEntry, render_index, render_site
 
     artifacts = {}
@@ -279,8 +280,9 @@ def render_catalog(root: Path) -> dict[str, dict[str, str]]:
     for key, kwargs in SITES.items():
         site_dir = root / key
         site_dir.mkdir(parents=True)
-        artifacts[key] = render_site(make_site_build(**kwargs), site_dir)
-        result = SiteResult.model_validate_json((site_dir / "result.json").read_text())
+        build = make_site_build(**kwargs)
+        artifacts[key] = render_site(build, site_dir)
+        result = SiteResult.model_validate_json(write_site_result(build, site_dir, artifacts[key]).read_text())
         entries.append(IndexEntry.from_result(result, build_time="2024-01-01T00:00:00Z"))
     render_index(entries, root)
     return artifacts

@@ -10,7 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from cistern_archive.grid.evidence import SonarModel, dense_scan_map, scan_window
-from cistern_archive.grid.export import grid_image, npz_bytes, png_bytes, read_npz, write_npz, write_png
+from cistern_archive.pipeline.export import grid_image, npz_bytes, png_bytes, read_npz, write_npz, write_png
 from cistern_archive.grid.polygon import polygon_scan, rectangle
 from cistern_archive.grid.raycast import OccupancyLookup, distance_field
 from cistern_archive.grid.tiles import TiledGrid
@@ -185,6 +185,18 @@ def test_png_and_npz_are_deterministic_and_readable(tmp_path):
     assert back.origin_xy_m == pytest.approx(grids[0].origin_xy_m) and back.cell_m == grids[0].cell_m
 
 
+def test_read_npz_names_a_file_of_another_layout(tmp_path):
+    from cistern_archive.core.errors import CisternError
+
+    other = tmp_path / "other.npz"
+    other.write_bytes(npz_bytes({"depths_m": np.array([1.5]), "log_odds_0": np.zeros((2, 2), np.float32)}))
+    with pytest.raises(CisternError, match=r"other\.npz: not a grid archive of this layout \(missing cell_m"):
+        read_npz(other)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(CisternError, match=r"junk\.npz: cannot read the grid archive"):
+        read_npz(tmp_path / "junk.npz")
+
+
 def test_png_refuses_bad_arrays():
     with pytest.raises(ValueError):
         png_bytes(np.zeros((2, 2), np.float32))
@@ -193,5 +205,7 @@ def test_png_refuses_bad_arrays():
 def test_grid_image_orientation():
     lo = np.zeros((2, 3), np.float32)
     lo[0, 0] = 4.0  # lower-left cell occupied
+    lo[0, 2] = -4.0  # lower-right cell free
     img = grid_image(EvidenceGrid(lo, (0.0, 0.0), 0.05, 0.0))
-    assert img[1, 0] > 200 and img[0, 0] == 128
+    # north up; black occupied, white free, grey unknown (the map figure's polarity)
+    assert img[1, 0] < 10 and img[1, 2] > 245 and img[0, 0] == 128 and img[1, 1] == 128

@@ -60,6 +60,12 @@ def test_rebuild_publishes_every_site_then_skips_the_unchanged(catalog, tmp_path
     for site in SITES:
         assert (out / site / "index.html").is_file() and (out / site / "result.json").is_file()
         assert report_is_complete(out / site)
+        # result.json is written once, after the report, and lists every file of the site but the
+        # record and the build information beside it
+        listed = json.loads((out / site / "result.json").read_text())["artifacts"]
+        written = {p.relative_to(out / site).as_posix() for p in (out / site).rglob("*") if p.is_file()}
+        assert listed["result"] == "result.json" and set(listed.values()) <= written
+        assert written - set(listed.values()) == {"build.json", "record.json"}
     assert (out / "index.html").is_file()
     summary = json.loads((out / "summary.json").read_text())
     assert [s["id"] for s in summary["sites"]] == SITES

@@ -18,7 +18,9 @@ from numpy.testing import assert_allclose
 from cistern_archive.grid.surface import SurfaceParams, wall_surface
 from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses
 from cistern_archive.report import ReportConfig, page_bytes, render_site
-from cistern_archive.report.files import build_time_from_env, slug, unique_slugs, write_npz
+from cistern_archive.pipeline.export import npz_bytes, read_npz
+from cistern_archive.pipeline.runner import write_site_result
+from cistern_archive.report.files import build_time_from_env, slug, unique_slugs
 from cistern_archive.report.gltf import glb_bytes, read_glb
 from cistern_archive.report.html import signed
 from report_fixtures import LATITUDE, LENGTH_M, LONGITUDE, SITES, WIDTH_M, make_site_build, render_catalog
@@ -106,8 +108,8 @@ def test_glb_round_trip_and_axes():
 
 def test_npz_is_reproducible_and_loadable(tmp_path):
     arrays = {"b": np.arange(5.0), "a": np.eye(2, dtype=np.float32)}
-    write_npz(tmp_path / "one.npz", arrays)
-    write_npz(tmp_path / "two.npz", dict(reversed(arrays.items())))
+    (tmp_path / "one.npz").write_bytes(npz_bytes(arrays))
+    (tmp_path / "two.npz").write_bytes(npz_bytes(dict(reversed(arrays.items()))))
     assert (tmp_path / "one.npz").read_bytes() == (tmp_path / "two.npz").read_bytes()
     with np.load(tmp_path / "one.npz") as loaded:
         assert_allclose(loaded["b"], arrays["b"])
@@ -210,14 +212,15 @@ def test_pages_are_accessible_and_offline(catalog, page):
 def test_site_folder_holds_every_artifact(catalog):
     root, artifacts = catalog
     pool = artifacts["pool"]
-    for key in ("page", "result", "grid", "grid-png-0", "map", "thumbnail", "probes", "mesh-ply", "mesh-gltf",
+    for key in ("page", "grid", "grid-png-0", "grids-csv", "map", "thumbnail", "probes", "mesh-ply", "mesh-gltf",
                 "render-top", "render-oblique-ne", "render-oblique-sw", "render-section", "dimensions-csv",
                 "pairs-csv", "scans-csv", "fans", "pairs-convergence", "pairs-particles-1"):
         assert (root / "pool" / pool[key]).is_file(), key
+    assert "result" not in pool  # the report never writes result.json; its caller does, once
     result = json.loads((root / "pool" / "result.json").read_text())
-    assert result["artifacts"] == pool
-    with np.load(root / "pool" / "grid.npz") as grid:
-        assert grid["log_odds_0"].ndim == 2 and grid["depths_m"].tolist() == [1.5]
+    assert result["artifacts"] == {**pool, "result": "result.json"}
+    (grid,) = read_npz(root / "pool" / "grid.npz")
+    assert grid.log_odds.ndim == 2 and grid.depth_m == 1.5
     read_glb((root / "pool" / "model.glb").read_bytes())
     assert (root / "pool" / "model.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
     rows = (root / "pool" / "dimensions.csv").read_text().splitlines()
@@ -248,8 +251,8 @@ def test_failed_build_page_shows_error_stage_and_input(catalog):
 def test_coordinates_are_redacted_when_the_record_asks(catalog):
     root, _ = catalog
     needle = str(LATITUDE)[:6]  # "35.885", a prefix of any rounding the page could print
-    for path in (root / "pool").iterdir():
-        if path.suffix in (".html", ".json", ".csv"):
+    for path in (root / "pool").iterdir():  # record.json is the record as catalogued, not the report's
+        if path.suffix in (".html", ".json", ".csv") and path.name != "record.json":
             assert needle not in path.read_text(), path
     assert "withheld" in (root / "pool" / "index.html").read_text()
     assert needle in (root / "bell" / "index.html").read_text()
@@ -354,7 +357,10 @@ def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
     again = tmp_path / "pool"
     again.mkdir()
     capfd.readouterr()
-    render_site(make_site_build(**SITES["pool"]), again)
+    build = make_site_build(**SITES["pool"])
+    written = render_site(build, again)
+    assert not (again / "result.json").exists() and not (again / "record.json").exists()  # the caller's
+    write_site_result(build, again, written)
     out, err = capfd.readouterr()
     assert out == "" and err == ""  # no X / VTK warnings on a machine without a display
 
@@ -370,17 +376,17 @@ def test_same_build_gives_the_same_bytes_quietly(catalog, tmp_path, capfd):
 
 def test_download_list_prints_no_size_for_the_timed_result(tmp_path):
     """result.json holds timings; printing its size would change the page from build to build."""
-    from cistern_archive.report.site import _downloads
+    from cistern_archive.report.downloads import download_rows
 
     (tmp_path / "result.json").write_text("{}" * 700)
     (tmp_path / "dimensions.csv").write_text("a,b\n")
-    rows = {d["file"]: d["size"] for d in _downloads({"result": "result.json", "dimensions-csv": "dimensions.csv"},
-                                                     tmp_path)}
+    rows = {d["file"]: d["size"] for d in download_rows({"result": "result.json", "dimensions-csv": "dimensions.csv"},
+                                                        tmp_path)}
     assert rows == {"result.json": "", "dimensions.csv": "4 B"}
 
 
 def test_stations_above_one_another_share_one_label():
-    from cistern_archive.report.figures import stacked_labels
+    from cistern_archive.report.maps import stacked_labels
 
     xy = np.array([[0.0, 0.0], [0.01, -0.01], [2.0, 0.0], [0.0, 0.02]])
     shown = stacked_labels(xy, ["d1a", "d2a", "d1b", "d3a"], tolerance_m=0.05)
@@ -397,7 +403,7 @@ def test_depth_colour_bar_runs_the_models_way():
 
 
 def test_parameters_read_as_key_and_value(catalog):
-    from cistern_archive.report.site import parameter_items
+    from cistern_archive.report.page import parameter_items
 
     assert parameter_items({"tau_pw": 6.0, "below": {"s2": "s1"}, "refine": True, "sizes": [1, 2]}) == [
         {"key": "below", "value": "s2: s1"}, {"key": "refine", "value": "yes"}, {"key": "sizes", "value": "1, 2"},

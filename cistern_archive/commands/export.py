@@ -16,12 +16,13 @@ def register(app: typer.Typer) -> None:
         site: str = typer.Argument(..., help="Site id."),
         bag: Path = typer.Option(..., "--bag", help="Bag folder to write (replaced if it is a bag of this site)."),
         catalog: Path = typer.Option(Path("catalog"), "--catalog", help="Catalog root folder."),
-        out: Path = typer.Option(Path("site"), "--out", help="Rebuild output folder (its report is reused)."),
+        out: Path = typer.Option(Path("site"), "--out", help="Rebuild output folder (its published build is packed)."),
         archive: Path | None = typer.Option(
             None, "--archive", help="Archive folder (default: $CISTERN_ARCHIVE, else .archive beside the catalog)."),
     ) -> None:
-        """Write an RFC 8493 bag: raw inputs, preservation formats, report, resolved configuration, provenance."""
-        from cistern_archive.archive.bag import export_bag
+        """Pack the published build in an RFC 8493 bag: raw inputs, report, preservation formats, resolved
+        configuration, provenance. Refused when the published build is not that of the current inputs."""
+        from cistern_archive.service.export import export_bag
 
         try:
             result = export_bag(site, bag, catalog=catalog, out=out, archive=archive)

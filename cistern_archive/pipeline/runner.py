@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 import traceback
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -328,10 +328,22 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
     return build
 
 
-def write_site_result(build: SiteBuild, site_dir: Path) -> Path:
-    """Write ``result.json`` (and the resolved record, ``record.json``) into ``site_dir``."""
+RESULT_FILE = "result.json"
+"""The site result's file in a site folder."""
+
+
+def write_site_result(build: SiteBuild, site_dir: Path, artifacts: Mapping[str, str] | None = None) -> Path:
+    """Write ``result.json`` (and the resolved record, ``record.json``) into ``site_dir``, once.
+
+    Parameters
+    ----------
+    artifacts : mapping, optional
+        Artifact name → path relative to ``site_dir`` of the files written beside it (the report's);
+        ``result`` → ``result.json`` is added. Call this after everything else of the site is written.
+    """
     site_dir.mkdir(parents=True, exist_ok=True)
     write_json_atomic(build.record.model_dump(mode="json"), site_dir / "record.json")
-    path = site_dir / "result.json"
-    write_json_atomic(build.result.model_dump(mode="json"), path)
+    listed = dict(sorted({**(artifacts or {}), "result": RESULT_FILE}.items()))
+    path = site_dir / RESULT_FILE
+    write_json_atomic(build.result.model_copy(update={"artifacts": listed}).model_dump(mode="json"), path)
     return path

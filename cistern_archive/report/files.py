@@ -4,27 +4,21 @@ The same inputs give the same bytes:
 
 * PNG: matplotlib figures are saved without the ``Software`` text chunk and without a timestamp; raster
   arrays go through Pillow with no text chunks at all.
-* NPZ: :func:`numpy.savez_compressed` stamps every zip member with the wall clock; :func:`write_npz`
-  writes the zip itself with a fixed member time (1980-01-01, the earliest a zip file can hold).
-* CSV: fixed float formatting, ``\\n`` line endings, sorted where order is not meaningful.
+* ``grid.npz``, the grid PNGs and the CSV tables: :mod:`cistern_archive.pipeline.export`.
 * Build time: only from ``SOURCE_DATE_EPOCH`` (https://reproducible-builds.org/specs/source-date-epoch/).
 """
 
 from __future__ import annotations
 
-import csv
 import datetime as dt
-import math
 import os
 import re
 import unicodedata
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from cistern_archive.grid.export import npz_bytes
 
 
 def build_time_from_env(environ: Mapping[str, str] | None = None) -> dt.datetime | None:
@@ -91,37 +85,4 @@ def save_figure(figure: Any, path: Path, *, dpi: int, tight: bool = True) -> Pat
     extra = {"bbox_inches": "tight", "pad_inches": 0.12} if tight else {}
     figure.savefig(path, format="png", dpi=dpi, metadata={"Software": None}, facecolor=figure.get_facecolor(),
                    **extra)
-    return path
-
-
-def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> Path:
-    """A compressed ``.npz`` readable by :func:`numpy.load`, identical for identical arrays.
-
-    Members are written in sorted name order with a fixed timestamp and fixed permissions
-    (:func:`cistern_archive.grid.export.npz_bytes`).
-    """
-    path.write_bytes(npz_bytes(dict(arrays)))
-    return path
-
-
-def format_number(value: float | None, digits: int = 3) -> str:
-    """Fixed-point text of a number; empty for ``None`` and NaN."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return ""
-    return f"{value:.{digits}f}"
-
-
-def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> Path:
-    """A CSV file with ``\\n`` line endings; floats with 4 decimals, ``None``/NaN as empty cells."""
-
-    def cell(value: Any) -> Any:
-        if isinstance(value, float):
-            return format_number(value, 4)
-        return "" if value is None else value
-
-    with open(path, "w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(header)
-        for row in rows:
-            writer.writerow([cell(value) for value in row])
     return path

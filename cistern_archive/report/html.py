@@ -16,7 +16,7 @@ from typing import Any
 import jinja2
 
 from cistern_archive.core.errors import CisternError
-from cistern_archive.report.files import format_number
+from cistern_archive.pipeline.export import format_number
 
 TEMPLATES_ENV = "CISTERN_ARCHIVE_TEMPLATES"
 STATUS_TEXT = {"ok": "ok", "partial": "partial", "failed": "failed", "skipped": "skipped"}

@@ -21,7 +21,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from cistern_archive.report.figures import DIMENSION_COLOURS
+from cistern_archive.report.maps import DIMENSION_COLOURS
 from cistern_archive.report.model3d import nice_length
 
 

@@ -198,8 +198,8 @@ def run_site(task: SiteTask) -> SiteOutcome:
         timings.update(build.result.timings_s)
         marker("report")
         tick = time.perf_counter()
-        write_site_result(build, staged)
-        render_site(build, staged, config=ReportConfig(**(task.report_config or {})))
+        artifacts = render_site(build, staged, config=ReportConfig(**(task.report_config or {})))
+        write_site_result(build, staged, artifacts)
         timings["report"] = round(time.perf_counter() - tick, 6)
         files = manifest(staged)
         write_json_atomic({"site_id": task.site_id, "build_key": task.build_key, "status": build.result.status,

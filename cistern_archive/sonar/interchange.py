@@ -34,6 +34,7 @@ import json
 import math
 import os
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -147,7 +148,7 @@ def check_npz(path: str | os.PathLike) -> None:
                 raise ReaderError(str(path), f"not a cistern-archive scan: missing arrays {missing}")
             shapes = {m: _npy_header(archive, m, path) for m in MEMBERS}
             times = _npy_header(archive, "beam_times_s", path) if "beam_times_s.npy" in names else None
-    except (OSError, zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as exc:
+    except (OSError, zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError, zlib.error) as exc:
         raise ReaderError(str(path), f"unreadable .npz: {type(exc).__name__}: {exc}") from None
     (bearings, _), (intensities, dtype), (metadata, meta_dtype) = (shapes[m] for m in MEMBERS)
     if len(bearings) != 1 or len(intensities) != 2 or intensities[0] != bearings[0]:
