@@ -91,7 +91,7 @@ def test_every_matcher_answers_degenerate_scans_honestly(name, case):
     no NaN in a converged estimate, and the JSON of the checked result is strict."""
     registry = default_registry()
     plugin = registry.load("matcher", name)
-    params = registry.check_params("matcher", name, {"n_particles": 100} if name == "pf-pairwise" else {})
+    params = registry.check_params("matcher", name, {"filter": {"n_particles": 100}} if name == "pf-pairwise" else {})
     for other in (DEGENERATE[case](), DEGENERATE["room"]()):
         result = match_pair(plugin.instance, params, [other, DEGENERATE[case]()], 1, 0, 1)
         if result.converged:
