@@ -14,8 +14,8 @@ the reference scan's frame as ``q = R(theta) p + (x, y)``, so ``(x, y)`` is ``p_
 
 Geometry
     :func:`scan_points` (a scan's echoes as (N, 2) points), :func:`transform`, :func:`transform_many`,
-    :func:`compose`, :func:`inverse`, :func:`rotate`, :func:`wrap`, :func:`robust_error` (truncated or
-    Huber error of distances).
+    :func:`compose`, :func:`inverse`, :func:`rotate`, :func:`robust_error` (truncated or Huber error
+    of distances); angles wrap with :func:`cistern_archive.core.scan.wrap_angle`.
 The reference scan
     :class:`ReferenceModel`: its points, k-d tree, normals and free space, built once per match;
     ``assess(moved, inlier_distance_m)`` and ``assess_pair(moving, pose, limits)`` give an
@@ -65,7 +65,6 @@ from cistern_plugins.alignment import (
     transform,
     transform_many,
     verdict,
-    wrap,
 )
 from cistern_plugins.closest_point import ICPOutcome, fit_covariance, refine_point_to_line, run_icp
 from cistern_plugins.verification import judge, match_confidence, tentative_fit
@@ -92,5 +91,4 @@ __all__ = [
     "transform",
     "transform_many",
     "verdict",
-    "wrap",
 ]
