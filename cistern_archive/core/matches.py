@@ -34,11 +34,11 @@ class MatchHistory:
     Attributes
     ----------
     weight_avg : ndarray, shape (T,)
-        The matcher's score after each iteration (pf-pairwise: the exponential average of the particle
-        weights, eq. 6's left side).
+        The matcher's score after each iteration (McVicker et al.'s filter: the exponential average of
+        the particle weights, eq. 6's left side).
     std_avg : ndarray, shape (T,)
-        The spread of its estimate after each iteration, metres (pf-pairwise: the exponential average
-        of the particle position std, eq. 5's left side).
+        The spread of its estimate after each iteration, metres (McVicker et al.'s filter: the
+        exponential average of the particle position std, eq. 5's left side).
     snapshots : tuple of ndarray
         A few particle sets, each (K, 4): x, y, theta, weight.
     snapshot_iterations : tuple of int

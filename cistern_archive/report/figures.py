@@ -217,7 +217,8 @@ def convergence_figure(
 ) -> Figure:
     """The weight average of eq. 6 (left) and the position-std average of eq. 5 (right) of every pair
     over the iterations, one line per pair: converged pairs in green, the others dashed magenta and
-    named at their last iteration; the thresholds the histories carry (pf-pairwise: τ_pw and r_c) dotted."""
+    named at their last iteration; the thresholds the histories carry (e.g. τ_pw and r_c of eqs. 5–6)
+    dotted."""
     weight_lines, spread_lines = history_thresholds(matches)
     fig = _figure(10.0, 3.8, dpi, left=0.07, right=0.98, bottom=0.14, top=0.9, wspace=0.22)
     left, right = fig.subplots(1, 2)
