@@ -402,6 +402,8 @@ def test_parameters_read_as_key_and_value(catalog):
     assert parameter_items({"tau_pw": 6.0, "below": {"s2": "s1"}, "refine": True, "sizes": [1, 2]}) == [
         {"key": "below", "value": "s2: s1"}, {"key": "refine", "value": "yes"}, {"key": "sizes", "value": "1, 2"},
         {"key": "tau_pw", "value": "6"}]
+    assert parameter_items({"verify": {"unique": True, "fit": {"enabled": False, "min_inliers": 25}}}) == [
+        {"key": "verify", "value": "fit: (enabled: no; min_inliers: 25); unique: yes"}]
     root, _ = catalog
     html = (root / "pool" / "index.html").read_text()
     assert "<dt>tau_pw</dt><dd>6</dd>" in html and "{&#34;" not in html and '{"' not in html

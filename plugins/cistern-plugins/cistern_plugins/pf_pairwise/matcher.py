@@ -53,20 +53,16 @@ class PFPairwiseMatcher:
         """
         p = PFParams.of(params)
         start = time.perf_counter()
-        refusal = refuse(reference, moving, p)
-        if refusal:
-            return MatchResult.no_estimate(refusal, seconds=time.perf_counter() - start, weight=float("nan"))
-        model = self.likelihood_map(reference, p)
-        if not model.lookup.any_occupied:
-            return MatchResult.no_estimate(
-                f"map of the reference scan has no cell above weight_threshold={p.map.weight_threshold}",
-                seconds=time.perf_counter() - start, weight=float("nan"),
-            )
+        why = refuse(reference, moving, p)
+        model = None if why else self.likelihood_map(reference, p)
+        why = why or empty_map(model, p)
+        if why:
+            return MatchResult.no_estimate(why, seconds=time.perf_counter() - start, weight=float("nan"))
         search = PairSearch(model, select_beams(moving, p.filter.max_beams), SearchWindow.of(guess, p),
                             ScanPair(reference, moving), p)
-        first = attempt(search, uniform_particles(p.filter.n_particles * p.filter.init_oversample, p, rng,
-                                                  search.window), rng)
-        return restart(search, first, rng).result(time.perf_counter() - start)
+        outcome = attempt(search, uniform_start(search, rng), rng)  # filter → verify → refine
+        outcome = restart(search, outcome, rng)  # from the best grid positions, when asked and it failed
+        return outcome.result(time.perf_counter() - start)
 
     def likelihood_map(self, reference: RangeScan, p: PFParams) -> LikelihoodMap:
         """``m_i`` of Table I line 2, cached for the few pairs that share a reference scan."""
@@ -96,6 +92,19 @@ def restart(search: PairSearch, first: Outcome, rng: np.random.Generator) -> Out
         if outcome.converged:
             return outcome
     return replace(first, reason=first.reason + f" (and after {p.filter.restarts} restarts)")
+
+
+def uniform_start(search: PairSearch, rng: np.random.Generator) -> np.ndarray:
+    """Table II, line 1: ``init_oversample`` × ``n_particles`` particles uniform in the window."""
+    f = search.p.filter
+    return uniform_particles(f.n_particles * f.init_oversample, search.p, rng, search.window)
+
+
+def empty_map(model: LikelihoodMap, p: PFParams) -> str:
+    """Why ``m_i`` cannot locate anything (empty string if it can)."""
+    if model.lookup.any_occupied:
+        return ""
+    return f"map of the reference scan has no cell above weight_threshold={p.map.weight_threshold}"
 
 
 def refuse(reference: RangeScan, moving: RangeScan, p: PFParams) -> str:
