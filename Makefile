@@ -23,9 +23,11 @@ demo: $(STAMP)
 	$(BIN)/cistern-archive rebuild --catalog $(CATALOG) --out $(OUT) --archive $(ARCHIVE) --workers $(WORKERS) \
 		|| [ $$? -eq 1 ]
 
-# lint-imports: the layers contract in pyproject.toml (a module imports only from layers below it).
+# lint-imports: the layers contract in pyproject.toml (a module imports only from layers below it), and
+# the plugins' contracts (matchers share helpers only through cistern_plugins.registration).
 test: $(STAMP)
 	$(BIN)/lint-imports --no-cache
+	$(BIN)/lint-imports --no-cache --config plugins/cistern-plugins/pyproject.toml
 	$(BIN)/python -m pytest -m "not slow" -q
 
 # pytest exits 5 when no test is marked slow; that is not a failure.

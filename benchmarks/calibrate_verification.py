@@ -29,7 +29,7 @@ from cistern_archive.evaluation import in_compass_frame, wilson_interval
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import match_pair, resolve_stage, segment_scan
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
-from cistern_plugins.alignment import ReferenceModel
+from cistern_plugins.registration import ReferenceModel
 from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, features
 
 MATCHERS = ("correlative", "icp")

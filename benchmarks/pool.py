@@ -5,12 +5,14 @@ speckle, multipath, spikes, the vehicle's own echo and a biased, noisy compass) 
 (the simulator's writer, as ``cistern-archive simulate`` does) and builds that site record with the
 pipeline runner (:func:`cistern_archive.pipeline.runner.build_site`, no rendering): segmentation,
 the localizer's pairs (both rounds), matcher, localizer, mapper and comparator with the record's
-references (10 probes each). ``--STAGE-param`` overrides a stage's parameters in the record.
+references (10 probes each). ``--matcher NAME`` runs another matcher plugin than the record's (e.g.
+``pf-pairwise``); ``--STAGE-param`` overrides a stage's parameters in the record (a dotted key such as
+``filter.n_particles=300`` sets one field of a parameter section).
 The site time is the runner's, without configuring and loading the scans.
 
 Usage::
 
-    .venv/bin/python benchmarks/pool.py [--seeds 20] [--json] [--matcher-param key=value ...]
+    .venv/bin/python benchmarks/pool.py [--seeds 20] [--json] [--matcher NAME] [--matcher-param key=value ...]
 
 A pair counts as a success when it converged within 0.10 m of the truth displacement expressed in the
 reference scan's compass frame (the map is drawn with the measured compass, so a common compass bias
@@ -67,10 +69,23 @@ def parse_value(text: str) -> object:
 
 
 def parse_overrides(items: list[str]) -> dict[str, object]:
-    out = {}
+    """``KEY=VALUE`` items as a parameter dict; a dotted key (``filter.n_particles=300``) nests."""
+    out: dict[str, object] = {}
     for item in items:
         key, _, value = item.partition("=")
-        out[key] = parse_value(value)
+        *sections, field = key.split(".")
+        target = out
+        for section in sections:
+            target = target.setdefault(section, {})
+        target[field] = parse_value(value)
+    return out
+
+
+def merged(params: dict, overrides: dict) -> dict:
+    """``params`` with ``overrides`` laid over it, section by section."""
+    out = dict(params)
+    for key, value in overrides.items():
+        out[key] = merged(out.get(key) or {}, value) if isinstance(value, dict) else value
     return out
 
 
@@ -81,22 +96,26 @@ def expected_displacement(sim, i: int, j: int) -> np.ndarray:
     return in_compass_frame(d, a.scan.yaw_rad - a.pose.yaw_rad)
 
 
-def seed_record(seed: int, spec, root: Path, overrides: dict[str, dict]):
+def seed_record(seed: int, spec, root: Path, overrides: dict[str, dict], matcher: str | None = None):
     """The pool simulated with ``seed`` as a site record in the catalog ``root``, with the stage
-    parameter ``overrides``; returns the loaded record and the simulation (for its truth)."""
+    parameter ``overrides`` (and the matcher plugin ``matcher`` instead of the record's, with its own
+    defaults); returns the loaded record and the simulation (for its truth)."""
     sim = simulate_site(spec.model_copy(update={"seed": seed}))
     loaded = load_record(write_site(sim, root, record_dir="sites"), root)
     record = default_registry().resolve(loaded.record)
     pipeline = record.pipeline
+    if matcher is not None:
+        pipeline = pipeline.model_copy(update={"matcher": pipeline.matcher.model_copy(
+            update={"plugin": matcher, "params": {}})})
     stages = {stage: getattr(pipeline, stage).model_copy(
-        update={"params": {**getattr(pipeline, stage).params, **overrides[stage]}}) for stage in overrides}
+        update={"params": merged(getattr(pipeline, stage).params, overrides[stage])}) for stage in overrides}
     record = record.model_copy(update={"pipeline": pipeline.model_copy(update=stages)})
     return replace(loaded, record=record), sim
 
 
-def run_seed(seed: int, spec, overrides: dict[str, dict], root: Path) -> dict:
+def run_seed(seed: int, spec, overrides: dict[str, dict], root: Path, matcher: str | None = None) -> dict:
     """Build one seed's pool with the pipeline runner (:func:`build_site`) and score it."""
-    loaded, sim = seed_record(seed, spec, root / f"seed-{seed}", overrides)
+    loaded, sim = seed_record(seed, spec, root / f"seed-{seed}", overrides, matcher)
     build = build_site(loaded)
     if build.result.status != "ok":
         raise SystemExit(f"seed {seed}: the build failed: {build.result.error}")
@@ -181,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    parser.add_argument("--matcher", metavar="NAME", help="matcher plugin to use instead of the record's")
     for stage in ("matcher", "localizer", "mapper", "comparator"):
         parser.add_argument(f"--{stage}-param", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args(argv)
@@ -189,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     overrides = {stage: parse_overrides(getattr(args, f"{stage}_param"))
                  for stage in ("matcher", "localizer", "mapper", "comparator")}
     with tempfile.TemporaryDirectory(prefix="pool-") as tmp:
-        runs = [run_seed(seed, spec, overrides, Path(tmp))
+        runs = [run_seed(seed, spec, overrides, Path(tmp), args.matcher)
                 for seed in range(args.first_seed, args.first_seed + args.seeds)]
     summary = summarise(runs)
     summary["params"] = runs[0]["params"]

@@ -18,6 +18,7 @@ from cistern_archive.pipeline.contracts import (
     DimensionRow,
     DimensionTable,
     EvidenceGrid,
+    HistoryThreshold,
     MapResult,
     MatchHistory,
     MatchResult,
@@ -113,7 +114,8 @@ def make_history(truth: np.ndarray, rng: np.random.Generator, *, converge: bool,
             snap_its.append(t)
         pull = 0.15 if converge else 0.0
         particles = particles + pull * (truth - particles) + rng.normal(0, 0.08 if converge else 0.3, particles.shape)
-    return MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snapshots), tuple(snap_its))
+    return MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snapshots), tuple(snap_its),
+                        weight_threshold=HistoryThreshold(6.0, "τ_pw"), std_threshold=HistoryThreshold(0.05, "r_c"))
 
 
 def make_grid(half, centre, depth_m: float, *, origin_shift: np.ndarray) -> EvidenceGrid:

@@ -39,28 +39,36 @@ def test_paper_configuration_is_exactly_the_papers():
     plugin = _pf_plugin()
     params = plugin.validate_params(matchers.PF_PAPER_PARAMS)
     assert params == plugin.params_model.paper()  # the benchmark runs the plugin's own preset
-    assert params.measurement_model == "raycast" and params.resample_weighting == "shifted"
-    assert params.init_oversample == 1 and params.unknown_score == -1.0
-    assert params.map_occupied == "cone" and params.map_free == "cone" and params.min_informative == 1.0
-    assert params.verify is False and params.verify_fit is False and params.restarts == 0
-    assert params.refine == "none"
-    assert params.max_beams >= 400  # every beam of a 0.9° sweep
-    assert params.cell_m == 0.05
-    assert params.chi_w == pytest.approx(2.0 / 7.0)  # 2 / (6 + 1)
-    assert params.chi_sigma == pytest.approx(2.0 / 5.0)  # 2 / (4 + 1)
+    f, m, v = params.filter, params.map, params.verify
+    assert f.measurement_model == "raycast" and f.resample_weighting == "shifted"
+    assert f.init_oversample == 1 and f.unknown_score == -1.0
+    assert m.occupied == "cone" and m.free == "cone" and f.min_informative == 1.0
+    assert v.unique is False and v.fit.enabled is False and f.restarts == 0
+    assert params.refine.method == "none"
+    assert f.max_beams >= 400  # every beam of a 0.9° sweep
+    assert m.cell_m == 0.05
+    assert f.chi_w == pytest.approx(2.0 / 7.0)  # 2 / (6 + 1)
+    assert f.chi_sigma == pytest.approx(2.0 / 5.0)  # 2 / (4 + 1)
+    changed = plugin.params_model.paper(filter={"n_particles": 200})
+    assert changed.filter.n_particles == 200 and changed.filter.measurement_model == "raycast"
 
 
 def test_paper_configuration_includes_every_departure_the_plugin_documents():
-    """The plugin's docstring lists the settings that give the paper's method; the benchmark's paper
-    configuration sets each of them the same way (and, beyond that list, turns the refinement off)."""
+    """The plugin's docstring lists the settings that give the paper's method (``section.key=value``);
+    the benchmark's paper configuration sets each of them the same way (and, beyond that list, turns
+    the refinement off)."""
     import cistern_plugins.pf_pairwise as pf
 
     text = " ".join(pf.__doc__.split()).split("the paper's method is", 1)[1].split(". The departures", 1)[0]
-    documented = dict(re.findall(r'(\w+)=("?[\w.-]+"?)', text))
-    assert {"measurement_model", "resample_weighting", "verify"} <= set(documented)
+    documented = dict(re.findall(r'([\w.]+)=("?[\w.-]+"?)', text))
+    assert {"filter.measurement_model", "filter.resample_weighting", "verify.unique"} <= set(documented)
     for key, value in documented.items():
         expected = json.loads(value.lower() if value in ("True", "False") else value)
-        assert matchers.PF_PAPER_PARAMS[key] == expected, key
+        section = matchers.PF_PAPER_PARAMS
+        *path, field = key.split(".")
+        for name in path:
+            section = section[name]
+        assert section[field] == expected, key
 
 
 def test_karto_threshold_lets_through_at_most_the_allowed_false_rate():

@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from cistern_archive.testing import simulated_pair
-from cistern_plugins.alignment import scan_points
+from cistern_plugins.registration import scan_points
 from cistern_plugins.correlative import CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound
 
 
@@ -43,12 +43,12 @@ def test_no_overlap_is_not_converged():
 
 def test_ridge_is_not_a_rival_but_a_separate_peak_is():
     """A rival joined to the best by a high ridge is the same peak; one behind a valley is ambiguous."""
-    from cistern_plugins.correlative import _valley
+    from cistern_plugins.correlative import valley
 
     wall = np.column_stack([np.linspace(-3, 3, 121), np.zeros(121)])  # one long wall: a ridge along x
     pyr = LikelihoodPyramid(wall, 0.05, 0.08, 2.0, 1)
     angles = np.zeros(1)
     best, along, across = np.array([0, 0, 0]), np.array([20, 0, 0]), np.array([0, 20, 0])
     seg = wall[40:81]  # a 2 m piece of the wall, matched at several shifts along it
-    assert _valley(pyr, seg, angles, best, along) > 0.8
-    assert _valley(pyr, seg, angles, best, across) < 0.2
+    assert valley(pyr, seg, angles, best, along) > 0.8
+    assert valley(pyr, seg, angles, best, across) < 0.2

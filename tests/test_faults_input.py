@@ -121,7 +121,7 @@ def test_station_labels_that_cannot_name_a_file_are_refused(tmp_path, label):
 # ------------------------------------------------------------------------ property: the loader
 VALID = RECORD + """\
 pipeline:
-  matcher: {plugin: pf-pairwise, params: {n_particles: 200}}
+  matcher: {plugin: pf-pairwise, params: {filter: {n_particles: 200}}}
 truth:
   - {station: S1, x_m: 0.0, y_m: 0.0}
 base: &anchor {place: here}

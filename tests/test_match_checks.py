@@ -93,7 +93,7 @@ def test_every_matcher_answers_degenerate_scans_honestly(name, case):
     """Each built-in matcher on degenerate scans (against itself and against a room): no exception,
     no NaN in a converged estimate, and the JSON of the checked result is strict."""
     registry = default_registry()
-    matcher = resolve_stage(registry, "matcher", name, {"n_particles": 100} if name == "pf-pairwise" else {})
+    matcher = resolve_stage(registry, "matcher", name, {"filter": {"n_particles": 100}} if name == "pf-pairwise" else {})
     for other in (DEGENERATE[case](), DEGENERATE["room"]()):
         result = match_pair(matcher, [other, DEGENERATE[case]()], 1, 0, 1)
         if result.converged:

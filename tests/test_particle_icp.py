@@ -4,7 +4,7 @@ import numpy as np
 
 from cistern_archive.testing import simulated_pair
 from cistern_plugins.particle_icp import ParticleICPMatcher, ParticleICPParams, icp_errors
-from cistern_plugins.alignment import ReferenceModel, scan_points
+from cistern_plugins.registration import ReferenceModel, scan_points
 
 
 def _pair(seed=3):

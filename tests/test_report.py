@@ -408,6 +408,8 @@ def test_parameters_read_as_key_and_value(catalog):
     assert parameter_items({"tau_pw": 6.0, "below": {"s2": "s1"}, "refine": True, "sizes": [1, 2]}) == [
         {"key": "below", "value": "s2: s1"}, {"key": "refine", "value": "yes"}, {"key": "sizes", "value": "1, 2"},
         {"key": "tau_pw", "value": "6"}]
+    assert parameter_items({"verify": {"unique": True, "fit": {"enabled": False, "min_inliers": 25}}}) == [
+        {"key": "verify", "value": "fit: (enabled: no; min_inliers: 25); unique: yes"}]
     root, _ = catalog
     html = (root / "pool" / "index.html").read_text()
     assert "<dt>tau_pw</dt><dd>6</dd>" in html and "{&#34;" not in html and '{"' not in html
@@ -506,3 +508,26 @@ def test_geotiff_only_for_a_georeferenced_unredacted_site(catalog):
         assert "depth" in tif.descriptions[0]
     world = (root / "bell" / "grid.tfw").read_text().split()
     assert [float(world[0]), float(world[3])] == [0.05, -0.05]
+
+
+def test_convergence_figure_draws_the_thresholds_the_histories_carry(tmp_path):
+    """The matcher names its thresholds in the history; the report draws them and knows no plugin."""
+    from cistern_archive.pipeline.contracts import HistoryThreshold, MatchHistory, MatchResult
+    from cistern_archive.report.figures import convergence_figure, history_thresholds
+
+    def pair(i, j, history):
+        return MatchResult(i, j, 1.0, 0.0, 0.0, 0.5, True, len(history.weight_avg), 0.1, "", None, history)
+
+    curve = np.linspace(0.0, 0.5, 10)
+    tau, r_c = HistoryThreshold(0.25, "τ_pw"), HistoryThreshold(0.05, "r_c")
+    drawn = [pair(0, 1, MatchHistory(curve, 1.0 - curve, weight_threshold=tau, std_threshold=r_c)),
+             pair(1, 2, MatchHistory(curve, 1.0 - curve, weight_threshold=tau, std_threshold=r_c))]
+    assert history_thresholds(drawn) == ([tau], [r_c])
+    fig = convergence_figure(tmp_path / "c.png", drawn, ["a", "b", "c"], dpi=40)
+    left, right = fig.axes
+    assert [t.get_text() for t in left.texts] == ["τ_pw"] and [t.get_text() for t in right.texts] == ["r_c"]
+    assert any(list(line.get_ydata()) == [0.25, 0.25] for line in left.lines)
+    bare = [pair(0, 1, MatchHistory(curve, 1.0 - curve))]
+    assert history_thresholds(bare) == ([], [])
+    fig = convergence_figure(tmp_path / "d.png", bare, ["a", "b"], dpi=40)
+    assert not fig.axes[0].texts and not fig.axes[1].texts

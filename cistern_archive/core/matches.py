@@ -8,26 +8,52 @@ from dataclasses import dataclass
 import numpy as np
 
 
+@dataclass(frozen=True)
+class HistoryThreshold:
+    """A threshold a matcher's iteration is judged by, drawn as a line across its history.
+
+    Attributes
+    ----------
+    value : float
+        The threshold, in the units of the series it applies to.
+    label : str
+        Its name in the figure (e.g. ``"τ_pw"``).
+    """
+
+    value: float
+    label: str
+
+
 @dataclass(frozen=True, eq=False)
 class MatchHistory:
     """Per-iteration diagnostics of an iterative matcher (for the report's convergence figures).
 
+    The matcher that fills it also says which thresholds its iteration is judged by, so the report draws
+    them without knowing the matcher or its parameters.
+
     Attributes
     ----------
     weight_avg : ndarray, shape (T,)
-        Exponential average of the particle weights after each iteration (eq. 6's left side).
+        The matcher's score after each iteration (McVicker et al.'s filter: the exponential average of
+        the particle weights, eq. 6's left side).
     std_avg : ndarray, shape (T,)
-        Exponential average of the particle position std after each iteration (eq. 5's left side).
+        The spread of its estimate after each iteration, metres (McVicker et al.'s filter: the
+        exponential average of the particle position std, eq. 5's left side).
     snapshots : tuple of ndarray
         A few particle sets, each (K, 4): x, y, theta, weight.
     snapshot_iterations : tuple of int
         The iteration each snapshot was taken at.
+    weight_threshold, std_threshold : HistoryThreshold or None
+        The line the score must reach and the one the spread must fall below, or ``None`` when the
+        matcher has no such threshold.
     """
 
     weight_avg: np.ndarray
     std_avg: np.ndarray
     snapshots: tuple[np.ndarray, ...] = ()
     snapshot_iterations: tuple[int, ...] = ()
+    weight_threshold: HistoryThreshold | None = None
+    std_threshold: HistoryThreshold | None = None
 
 
 

@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict
 # The stages' input and output types live in the bottom layer; they are named here too, as the contract.
 from cistern_archive.core.dimensions import DimensionRow, DimensionTable  # noqa: F401
 from cistern_archive.core.grids import EvidenceGrid, MapResult  # noqa: F401
-from cistern_archive.core.matches import MatchGuess, MatchHistory, MatchResult  # noqa: F401
+from cistern_archive.core.matches import HistoryThreshold, MatchGuess, MatchHistory, MatchResult  # noqa: F401
 from cistern_archive.core.poses import Poses  # noqa: F401
 from cistern_archive.core.scan import RangeScan
 

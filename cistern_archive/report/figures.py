@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
-from cistern_archive.core.matches import MatchResult
+from cistern_archive.core.matches import HistoryThreshold, MatchResult
 from cistern_archive.core.scan import RangeScan, Scan
 from cistern_archive.report.canvas import LINK_BAD, LINK_OK, FigureFile
 from cistern_archive.report.canvas import new_figure as _figure
@@ -31,12 +31,31 @@ from cistern_archive.report.files import save_figure
 PARTICLES = LinearSegmentedColormap.from_list("particles", ["#0b6623", "#3cb043", "#ffffff"])
 
 
-def _thresholds(matcher_params: dict) -> tuple[float | None, float | None]:
-    """τ_pw (eq. 6) and the std threshold r_c (eq. 5) from the matcher's recorded parameters."""
-    tau = matcher_params.get("tau_pw")
-    cell = matcher_params.get("cell_m")
-    return (float(tau) if isinstance(tau, int | float) else None,
-            float(cell) if isinstance(cell, int | float) else None)
+def history_thresholds(matches: Sequence[MatchResult]) -> tuple[list[HistoryThreshold], list[HistoryThreshold]]:
+    """The distinct weight and spread thresholds the matches' histories carry (in order of first use):
+    the matcher says which lines its iteration is judged by, the report only draws them."""
+    weight: list[HistoryThreshold] = []
+    spread: list[HistoryThreshold] = []
+    for match in matches:
+        hist = match.history
+        if hist is None:
+            continue
+        for line, seen in ((hist.weight_threshold, weight), (hist.std_threshold, spread)):
+            if line is not None and line not in seen:
+                seen.append(line)
+    return weight, spread
+
+
+def _must(lines: Sequence[HistoryThreshold], side: str) -> str:
+    """", which must end above τ_pw" for the thresholds drawn, or nothing without one."""
+    return f", which must end {side} {' or '.join(line.label for line in lines)}" if lines else ""
+
+
+def _threshold_lines(ax, lines: Sequence[HistoryThreshold]) -> None:
+    for line in lines:
+        ax.axhline(line.value, color="black", ls=":", lw=1.0)
+        ax.annotate(line.label, (0.01, line.value), xycoords=("axes fraction", "data"), xytext=(2, 2),
+                    textcoords="offset points", fontsize=8)
 
 
 def _pair_title(ax, match: MatchResult, labels: Sequence[str]) -> None:
@@ -57,12 +76,13 @@ def _grid_axes(n: int, dpi: int, *, cols: int = 4, panel_in: float = 2.5):
 
 
 def convergence_figure(
-    path: Path, matches: Sequence[MatchResult], labels: Sequence[str], *, matcher_params: dict, dpi: int
+    path: Path, matches: Sequence[MatchResult], labels: Sequence[str], *, dpi: int
 ) -> Figure:
     """The weight average of eq. 6 (left) and the position-std average of eq. 5 (right) of every pair
     over the iterations, one line per pair: converged pairs in green, the others dashed magenta and
-    named at their last iteration; τ_pw and r_c dotted."""
-    tau, r_c = _thresholds(matcher_params)
+    named at their last iteration; the thresholds the histories carry (e.g. τ_pw and r_c of eqs. 5–6)
+    dotted."""
+    weight_lines, spread_lines = history_thresholds(matches)
     fig = _figure(10.0, 3.8, dpi, left=0.07, right=0.98, bottom=0.14, top=0.9, wspace=0.22)
     left, right = fig.subplots(1, 2)
     name_failures = sum(1 for m in matches if not m.converged) <= 8
@@ -78,14 +98,8 @@ def convergence_figure(
             name = f"{labels[match.j]} in {labels[match.i]}"
             left.annotate(name, (it[-1], hist.weight_avg[-1]), xytext=(3, 0), textcoords="offset points",
                           fontsize=7, color=LINK_BAD, va="center")
-    if tau is not None:
-        left.axhline(tau, color="black", ls=":", lw=1.0)
-        left.annotate("τ_pw", (0.01, tau), xycoords=("axes fraction", "data"), xytext=(2, 2),
-                      textcoords="offset points", fontsize=8)
-    if r_c is not None:
-        right.axhline(r_c, color="black", ls=":", lw=1.0)
-        right.annotate("r_c", (0.01, r_c), xycoords=("axes fraction", "data"), xytext=(2, 2),
-                       textcoords="offset points", fontsize=8)
+    _threshold_lines(left, weight_lines)
+    _threshold_lines(right, spread_lines)
     right.set_yscale("log")
     left.set_title("Weight average (eq. 6)", fontsize=10)
     right.set_title("Position std average (eq. 5), metres", fontsize=10)
@@ -168,7 +182,6 @@ def pair_figures(
     labels: Sequence[str],
     *,
     truths: Sequence[tuple[float, float] | None],
-    matcher_params: dict,
     per_figure: int,
     dpi: int,
 ) -> list[tuple[FigureFile, list[int]]]:
@@ -183,15 +196,16 @@ def pair_figures(
         return []
     out: list[tuple[FigureFile, list[int]]] = []
     conv = out_dir / "pairs-convergence.png"
-    convergence_figure(conv, matches, labels, matcher_params=matcher_params, dpi=dpi)
+    convergence_figure(conv, matches, labels, dpi=dpi)
+    weight, spread = history_thresholds(matches)
     failed = [f"{labels[m.j]} in {labels[m.i]}" for m in matches if not m.converged]
     out.append((FigureFile(
         "pairs-convergence", conv.name, "Convergence of the pair matches",
         f"Line charts of the particle filter's weight average and position spread over the iterations for "
         f"{len(matches)} pairs; {len(failed)} did not converge",
-        "One line per pair. Left: exponential average of the particle weights (eq. 6), which must end above "
-        "τ_pw; right: exponential average of the particles' position spread (eq. 5, log scale), which must "
-        "end below r_c. Green: converged; dashed magenta: not converged, named 'moving in reference'"
+        f"One line per pair. Left: exponential average of the particle weights (eq. 6){_must(weight, 'above')}; "
+        f"right: exponential average of the particles' position spread (eq. 5, log scale){_must(spread, 'below')}. "
+        "Green: converged; dashed magenta: not converged, named 'moving in reference'"
         + (f" ({', '.join(failed)})" if failed else "") + ". The pair table gives each pair's numbers."),
         list(range(len(matches)))))
     n_parts = math.ceil(len(matches) / per_figure)

@@ -126,13 +126,14 @@ def _stat_rows(stats: dict[str, float | None]) -> list[dict[str, str]]:
 
 def parameter_text(value: Any) -> str:
     """A parameter value as a reader writes it: numbers and words as they are, lists comma-separated,
-    mappings as ``key: value`` pairs."""
+    mappings as ``key: value`` pairs (a mapping inside one in parentheses)."""
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:g}"
     if isinstance(value, dict):
-        return "; ".join(f"{k}: {parameter_text(v)}" for k, v in sorted(value.items())) or "none"
+        return "; ".join(f"{k}: ({parameter_text(v)})" if isinstance(v, dict) and v else f"{k}: {parameter_text(v)}"
+                         for k, v in sorted(value.items())) or "none"
     if isinstance(value, list | tuple):
         return ", ".join(parameter_text(v) for v in value) or "none"
     return "none" if value is None else str(value)

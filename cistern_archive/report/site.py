@@ -63,15 +63,6 @@ def _scan_depth(build: SiteBuild) -> float | None:
     return float(np.median(depths)) if depths else None
 
 
-def _matcher_params(result: SiteResult) -> dict:
-    if result.provenance is None:
-        return {}
-    for plugin in result.provenance.plugins:
-        if plugin.stage == "matcher":
-            return dict(plugin.params)
-    return {}
-
-
 def _truth_offset(result: SiteResult, i: int, j: int) -> tuple[float, float] | None:
     scans = result.scans
     if not (0 <= i < len(scans) and 0 <= j < len(scans)):
@@ -103,7 +94,7 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
         site_dir, drawn_matches,
         [build.range_scans[m.i] if 0 <= m.i < len(build.range_scans) else None for m in drawn_matches],
         labels, truths=[_truth_offset(build.result, m.i, m.j) for m in drawn_matches],
-        matcher_params=_matcher_params(build.result), per_figure=config.pairs_per_figure, dpi=config.dpi)
+        per_figure=config.pairs_per_figure, dpi=config.dpi)
     out["pair_keys"] = {(m.i, m.j): [f.key for f, chunk in out["pairs"] if k in chunk]
                         for k, m in enumerate(drawn_matches)}
     out["pairs"] = [f for f, _ in out["pairs"]]

@@ -39,17 +39,20 @@ from scipy import ndimage
 
 from cistern_archive.pipeline.contracts import GuidedMatcher, MatchGuess, MatchResult, StageParams
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.alignment import (
+from cistern_plugins.registration import (
     ConvergenceParams,
     FreeSpace,
     ReferenceModel,
     compose,
+    fit_covariance,
+    judge,
+    match_confidence,
+    refine_point_to_line,
     scan_points,
+    tentative_fit,
     too_few_points,
     transform,
 )
-from cistern_plugins.verification import judge, match_confidence, tentative_fit
-from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
 
 class CorrelativeParams(ConvergenceParams):
@@ -306,11 +309,11 @@ def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: Correla
     if len(far) == 0:
         return None
     k = far[0]
-    ridge = _valley(pyr, points, angles, nodes[0], nodes[k]) >= p.valley_ratio * scores[0]
+    ridge = valley(pyr, points, angles, nodes[0], nodes[k]) >= p.valley_ratio * scores[0]
     return float(d[k]), float(da[k]), float(scores[k]), ridge
 
 
-def _valley(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+def valley(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     """Lowest score on the straight path between nodes ``a`` and ``b`` (each path point scored at the
     best yaw within two steps of the yaws of ``a`` and ``b``)."""
     lo = max(0, min(a[2], b[2]) - 2)

@@ -22,7 +22,7 @@ Steps (one directed pair, no odometry, so the prior is wide):
    (``benchmarks/RESULTS.md``).
 
 The converged flag is honest: the spread criterion must be met and the final placement must pass the
-shared test of :mod:`cistern_plugins.alignment` (inliers, inlier ratio, two-direction constraint,
+shared test of :mod:`cistern_plugins.registration` (inliers, inlier ratio, two-direction constraint,
 free-space violations). The per-iteration weight and spread averages and particle snapshots go into
 :class:`~cistern_archive.pipeline.contracts.MatchHistory`.
 """
@@ -36,18 +36,20 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.pipeline.contracts import MatchHistory, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import HistoryThreshold, MatchHistory, MatchResult, StageParams
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.verification import judge, match_confidence
-from cistern_plugins.alignment import (
+from cistern_plugins.registration import (
     ConvergenceParams,
     ReferenceModel,
+    fit_covariance,
+    judge,
+    match_confidence,
+    refine_point_to_line,
     robust_error,
     scan_points,
     too_few_points,
     transform_many,
 )
-from cistern_plugins.icp import fit_covariance, refine_point_to_line
 
 
 class ParticleICPParams(ConvergenceParams):
@@ -146,7 +148,8 @@ class ParticleICPMatcher:
         reason = "" if settled else (
             f"particles did not converge in {p.iterations} iterations (spread {std_avg[-1]:.3f} m)")
         reason = reason or judge(quality, p.limits())
-        history = MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snaps), tuple(snap_its))
+        history = MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snaps), tuple(snap_its),
+                               std_threshold=HistoryThreshold(p.converge_std_m, "converge_std_m (per axis)"))
         cov = np.cov(poses.T, aweights=w) if len(poses) > 3 else None
         fit_cov = fit_covariance(model, src, estimate, p.inlier_distance_m, quality.rms_m)
         if cov is not None and fit_cov is not None:
