@@ -230,5 +230,13 @@ class SiteRecord(Strict):
                 raise ValueError(f"reference {ref.name!r}: frame {ref.measure.frame!r} is not a station")
         return self
 
+    def public(self) -> "SiteRecord":
+        """The record as it may be published: without coordinates when ``location.redact`` asks for it
+        (a site's exact position stays in the catalog and the archive, never in a published folder)."""
+        if not self.location.redact or (self.location.latitude is None and self.location.longitude is None):
+            return self
+        return self.model_copy(update={"location": self.location.model_copy(update={"latitude": None,
+                                                                                     "longitude": None})})
+
     def station_index(self) -> dict[str, int]:
         return {scan.station: k for k, scan in enumerate(self.scans)}

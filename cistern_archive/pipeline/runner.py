@@ -333,7 +333,8 @@ RESULT_FILE = "result.json"
 
 
 def write_site_result(build: SiteBuild, site_dir: Path, artifacts: Mapping[str, str] | None = None) -> Path:
-    """Write ``result.json`` (and the resolved record, ``record.json``) into ``site_dir``, once.
+    """Write ``result.json`` (and the resolved record, ``record.json``, redacted as the record asks:
+    :meth:`~cistern_archive.catalog.models.SiteRecord.public`) into ``site_dir``, once.
 
     Parameters
     ----------
@@ -342,7 +343,7 @@ def write_site_result(build: SiteBuild, site_dir: Path, artifacts: Mapping[str, 
         ``result`` → ``result.json`` is added. Call this after everything else of the site is written.
     """
     site_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(build.record.model_dump(mode="json"), site_dir / "record.json")
+    write_json_atomic(build.record.public().model_dump(mode="json"), site_dir / "record.json")
     listed = dict(sorted({**(artifacts or {}), "result": RESULT_FILE}.items()))
     path = site_dir / RESULT_FILE
     write_json_atomic(build.result.model_copy(update={"artifacts": listed}).model_dump(mode="json"), path)
