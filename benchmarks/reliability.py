@@ -71,7 +71,7 @@ def fixity_cost(n_sites: int, work: Path) -> dict:
 
     from cistern_archive.archive import Archive
     from cistern_archive.pipeline.validate import validate_catalog
-    from cistern_archive.service.rebuild import site_inputs
+    from cistern_archive.service.planning import site_inputs
     from cistern_archive.simulation.synthetic import write_synthetic_catalog
 
     catalog = work / "catalog"

@@ -59,7 +59,7 @@ def _warm_up(catalog: Path, archive: Path) -> None:
     from cistern_archive.archive import Archive
     from cistern_archive.pipeline.validate import validate_catalog
     from cistern_archive.pipeline.registry import default_registry
-    from cistern_archive.service.rebuild import plan_site
+    from cistern_archive.service.planning import plan_site
 
     registry = default_registry()
     with Archive(archive) as store:

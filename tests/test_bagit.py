@@ -11,7 +11,7 @@ from pathlib import Path
 import bagit
 import pytest
 
-from cistern_archive.pipeline.export import npz_bytes, read_npz, write_npz
+from cistern_archive.pipeline.export import read_npz, write_npz
 from cistern_archive.service.export import NotPublished, export_bag
 from cistern_archive.service.rebuild import rebuild
 from service_helpers import CLI, FAST_REPORT, make_catalog

@@ -18,8 +18,8 @@ from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.pipeline.registry import Registry, default_registry
 from cistern_archive.pipeline.validate import validate_catalog
 from cistern_archive.service.buildkey import build_key
-from cistern_archive.service.rebuild import (CURRENT_STATUSES, is_current, published_build, require_catalog,
-                                             select_sites, site_inputs)
+from cistern_archive.service.rebuild import require_catalog
+from cistern_archive.service.planning import CURRENT_STATUSES, is_current, published_build, select_sites, site_inputs
 
 Action = Literal["skip", "new", "rebuild"]
 SHOWN_CHARS = 60

@@ -21,7 +21,7 @@ from cistern_archive.core.errors import CatalogError, CisternError
 from cistern_archive.pipeline.registry import Registry, default_registry
 from cistern_archive.pipeline.validate import validate_catalog
 from cistern_archive.service.publish import publish
-from cistern_archive.service.rebuild import CURRENT_STATUSES, is_current, plan_site, published_build
+from cistern_archive.service.planning import CURRENT_STATUSES, is_current, plan_site, published_build
 
 
 class NotPublished(CisternError):

@@ -23,28 +23,25 @@ Order of a rebuild of ``OUT``:
 
 from __future__ import annotations
 
-import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.index import utc_now
 from cistern_archive.archive.repository import Archive, default_archive_dir
-from cistern_archive.catalog.loader import LoadedRecord, record_paths
-from cistern_archive.core.errors import CatalogError, CisternError, EnvironmentProblem
+from cistern_archive.catalog.loader import record_paths
+from cistern_archive.core.errors import CatalogError
 from cistern_archive.pipeline.registry import Registry, default_registry
-from cistern_archive.service.buildkey import BuildKey, build_key, code_version
+from cistern_archive.service.buildkey import code_version
 from cistern_archive.service.executors import choose_executor
 from cistern_archive.service.lock import RebuildLock
+from cistern_archive.service.outcomes import log_outcome, outcome_of, record_outcome
 from cistern_archive.service.publish import recover
 from cistern_archive.service.runlog import LOG_DIR, RunLog, new_run_id
-from cistern_archive.service.summary import RebuildSummary, SiteOutcome
-from cistern_archive.service.worker import BUILD_INFO, PROGRESS_DIR, SiteTask, run_site
-
-SUMMARY_NAME = "summary.json"
-
+from cistern_archive.service.summary import SUMMARY_NAME, RebuildSummary, SiteOutcome
+from cistern_archive.service.index_page import index_is_current, index_key, published_sites, write_index
+from cistern_archive.service.planning import SitePlan, is_current, plan_sites, published_build, select_sites
+from cistern_archive.service.worker import PROGRESS_DIR, SiteTask, run_site
 
 class Progress(Protocol):
     """What a rebuild reports while it runs (the CLI draws bars or prints lines)."""
@@ -64,251 +61,11 @@ class NullProgress:
         pass
 
 
-@dataclass(frozen=True)
-class SitePlan:
-    loaded: LoadedRecord
-    key: BuildKey
-    repairs: tuple[str, ...] = ()
-    """Archived copies of the site's inputs that were damaged or missing and were restored."""
-
-    @property
-    def site_id(self) -> str:
-        return self.loaded.record.id
-
-
-def site_inputs(loaded: LoadedRecord) -> list[tuple[str, str]]:
-    """``(role, path relative to the catalog root)`` of every file the record references."""
-    record = loaded.record
-    items = [("scan", scan.file) for scan in record.scans]
-    if record.simulation:
-        items.append(("simulation", record.simulation))
-    return sorted(set(items), key=lambda item: item[1])
-
-
-def unreadable_inputs(loaded: LoadedRecord) -> set[str]:
-    """The record's scan files that are plainly not of their format, judged from their headers only.
-
-    They are not copied into the archive (a junk file of any size would otherwise be kept for ever);
-    the site's build then fails at its ``load`` stage naming the file and the problem.
-    """
-    from cistern_archive.core.errors import ReaderError
-    from cistern_archive.sonar.readers import check_file
-
-    refused = set()
-    for scan in loaded.record.scans:
-        try:
-            check_file(loaded.resolve(scan.file), scan.format)
-        except ReaderError:
-            refused.add(scan.file)
-    return refused
-
-
-def plan_site(loaded: LoadedRecord, archive: Archive, registry: Registry, run_id: str | None,
-              report_config: dict[str, Any] | None = None) -> SitePlan:
-    """Archive the site's record and inputs (copies only new content) and compute its build key."""
-    site_id = loaded.record.id
-    record_rel = loaded.path.resolve().relative_to(loaded.root).as_posix()
-    refused = unreadable_inputs(loaded)
-    items = [archive.ingest(loaded.path, site_id=site_id, role="record", relative_path=record_rel, run_id=run_id)]
-    digests = {}
-    for role, relative in site_inputs(loaded):
-        if relative in refused:
-            digests[relative] = file_sha256(loaded.resolve(relative))[0]
-            continue
-        items.append(archive.ingest(loaded.resolve(relative), site_id=site_id, role=role, relative_path=relative,
-                                    run_id=run_id))
-        digests[relative] = items[-1].sha256
-    archive.index.touch_site(site_id, loaded.record.name, record_rel)
-    repairs = tuple(f"restored the archived copy of {item.relative_path} ({item.sha256[:12]}), which was "
-                    f"{item.repaired}" for item in items if item.repaired)
-    return SitePlan(loaded=loaded, key=build_key(loaded, digests, registry, report_config), repairs=repairs)
-
-
-def plan_sites(selected: list[LoadedRecord], store: Archive, registry: Registry, run_id: str,
-               report_config: dict[str, Any] | None, log: RunLog) -> tuple[list[SitePlan], list[SiteOutcome]]:
-    """Plan every selected site; a site whose inputs cannot be read or archived fails alone.
-
-    Raises
-    ------
-    EnvironmentProblem
-        The archive itself cannot be written (a full or read-only disk): no site can be planned.
-    """
-    plans, failed = [], []
-    for loaded in selected:
-        try:
-            plans.append(plan_site(loaded, store, registry, run_id, report_config))
-        except EnvironmentProblem:
-            raise
-        except (CisternError, OSError, ValueError) as exc:
-            message = str(exc) if isinstance(exc, CisternError) else f"{type(exc).__name__}: {exc}"
-            outcome = SiteOutcome(id=loaded.record.id, status="failed", build_key="",
-                                  error=f"archiving its inputs: {message}")
-            failed.append(outcome)
-            _record_outcome(store, run_id, outcome, Path("."))
-            _log_outcome(log, outcome)
-    return plans, failed
-
-
-def published_build(site_dir: Path) -> dict[str, Any] | None:
-    """The ``build.json`` of a published site, or None when absent or unreadable."""
-    try:
-        data = json.loads((site_dir / BUILD_INFO).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
-CURRENT_STATUSES = ("ok", "partial")
-"""Published statuses a build key can stand for: the same inputs give the same ``partial`` build
-again, while a ``failed`` one may have failed for a reason outside its inputs and is retried."""
-
-
-def is_current(site_dir: Path, key: str) -> bool:
-    """Whether the published report was built with ``key``, ran to the end (``ok`` or ``partial``)
-    and is complete on disk."""
-    info = published_build(site_dir)
-    if info is None or info.get("build_key") != key or info.get("status") not in CURRENT_STATUSES:
-        return False
-    files = info.get("files") or {}
-    return bool(files) and all((site_dir / name).is_file() for name in files)
-
-
-def select_sites(records: list[LoadedRecord], wanted: list[str] | None, problems: list[str]) -> list[LoadedRecord]:
-    """The records to rebuild: all valid ones, or those named by ``--site`` (unknown names are refused)."""
-    if not wanted:
-        return records
-    by_id = {loaded.record.id: loaded for loaded in records}
-    unknown = [site for site in wanted if site not in by_id]
-    if unknown:
-        known = ", ".join(sorted(by_id)) or "none"
-        raise CatalogError(problems + [f"--site {name}: no valid site record with this id (valid: {known})"
-                                       for name in unknown])
-    return [by_id[site] for site in dict.fromkeys(wanted)]
-
-
-def _outcome(task: SiteTask, result: Any) -> SiteOutcome:
-    if isinstance(result, SiteOutcome):
-        return result
-    message = f"{type(result).__name__}: {result}" if isinstance(result, BaseException) else repr(result)
-    return SiteOutcome(id=task.site_id, status="failed", error=f"worker: {message}", build_key=task.build_key)
-
-
-def _size(path: Path) -> int:
-    try:
-        return path.stat().st_size
-    except OSError:
-        return -1
-
-
-BUILD_EVENT_OUTCOME = {"ok": "success", "partial": "partial", "failed": "failure", "skipped": "skipped"}
-
-
-def _record_outcome(archive: Archive, run_id: str, outcome: SiteOutcome, out: Path) -> None:
-    """``build`` event, and for a published site its artifacts and a ``publish`` event."""
-    index = archive.index
-    with index.transaction():
-        index.add_event("build", agent=archive.agent, outcome=BUILD_EVENT_OUTCOME[outcome.status],
-                        run_id=run_id, site_id=outcome.id,
-                        detail={"build_key": outcome.build_key, "error": outcome.error, "worker": outcome.worker,
-                                "seconds": outcome.timings_s.get("wall")})
-        if outcome.artifacts:
-            for path, sha256 in outcome.artifacts.items():
-                index.add_artifact(run_id, outcome.id, path, sha256, _size(out / outcome.id / path))
-            index.add_event("publish", agent=archive.agent, outcome="success", run_id=run_id, site_id=outcome.id,
-                            detail={"folder": outcome.id, "files": len(outcome.artifacts),
-                                    "build_key": outcome.build_key})
-
-
-def _log_outcome(log: RunLog, outcome: SiteOutcome) -> None:
-    seconds = outcome.timings_s.get("wall")
-    took = f" in {seconds:.2f} s" if seconds is not None else ""
-    line = f"site {outcome.id}: {outcome.status}{took} (key {outcome.build_key[:12]}, worker {outcome.worker})"
-    if outcome.status == "failed":
-        log.write(f"{line}: {outcome.error}\n{outcome.detail}".rstrip(), "ERROR")
-    elif outcome.status == "partial":
-        log.write(f"{line}: {'; '.join(outcome.reasons)}", "WARN")
-    else:
-        log.write(line)
-
-
 def clear_progress(out: Path) -> None:
     """Remove the stage markers of the workers (``OUT/.progress``; any left by a killed rebuild)."""
     import shutil
 
     shutil.rmtree(out / PROGRESS_DIR, ignore_errors=True)
-
-
-def published_sites(out: Path, site_ids: list[str]) -> list[str]:
-    """The catalog's sites that have a published ``result.json``, sorted."""
-    return sorted(site_id for site_id in site_ids if (out / site_id / "result.json").is_file())
-
-
-def index_key(out: Path, sites: list[str], code: str) -> str:
-    """A digest of what ``OUT/index.html`` shows: the code version and, per published site, its
-    ``build.json`` (build key, run, build time, status)."""
-    import hashlib
-
-    from cistern_archive.service.buildkey import canonical_json
-
-    shown = []
-    for site_id in sites:
-        info = published_build(out / site_id) or {}
-        shown.append([site_id, *(info.get(k) for k in ("build_key", "run_id", "built_at", "status"))])
-    return hashlib.sha256(canonical_json({"code_version": code, "sites": shown}).encode("utf-8")).hexdigest()
-
-
-def index_is_current(out: Path, key: str) -> bool:
-    """Whether ``OUT/index.html`` was rendered from exactly the published reports ``key`` describes
-    (recorded in the previous ``summary.json``; a crash between a publish and the index write leaves an
-    older key there, so the index is rendered again)."""
-    if not (out / "index.html").is_file():
-        return False
-    try:
-        previous = json.loads((out / SUMMARY_NAME).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return isinstance(previous, dict) and previous.get("index_key") == key
-
-
-def index_entries(out: Path, site_ids: list[str]):
-    """One :class:`~cistern_archive.report.IndexEntry` per published site, in site-id order."""
-    from cistern_archive.pipeline.results import SiteResult
-    from cistern_archive.report.index import IndexEntry
-
-    entries = []
-    for site_id in sorted(site_ids):
-        site_dir = out / site_id
-        try:
-            result = SiteResult.model_validate_json((site_dir / "result.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            continue
-        built_at = (published_build(site_dir) or {}).get("built_at") or ""
-        entries.append(IndexEntry.from_result(result, build_time=built_at))
-    return entries
-
-
-def write_index(out: Path, site_ids: list[str]) -> Path:
-    """Render ``OUT/index.html`` for every published site of the catalog and move it into place atomically.
-
-    The page is rendered in a temporary sibling folder whose entries link to the site folders, so that
-    the renderer sees the thumbnails, and then renamed over the previous index.
-    """
-    import os
-    import shutil
-    import tempfile
-
-    from cistern_archive.report.index import render_index
-
-    staging = Path(tempfile.mkdtemp(prefix=".index.tmp-", dir=out))
-    try:
-        for site_id in site_ids:
-            if (out / site_id).is_dir():
-                (staging / site_id).symlink_to(out / site_id, target_is_directory=True)
-        page = render_index(index_entries(out, site_ids), staging)
-        os.replace(page, out / "index.html")
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return out / "index.html"
 
 
 def rebuild(
@@ -491,11 +248,11 @@ def _execute(plans: list[SitePlan], summary: RebuildSummary, store: Archive, log
     done: set[str] = set()
     try:
         for task, result in executor.run(run_site, tasks):
-            outcome = _outcome(task, result)
+            outcome = outcome_of(task, result)
             done.add(task.site_id)
             summary.sites.append(outcome)
-            _record_outcome(store, summary.run_id, outcome, out)
-            _log_outcome(log, outcome)
+            record_outcome(store, summary.run_id, outcome, out)
+            log_outcome(log, outcome)
             progress.site_done(outcome)
     except KeyboardInterrupt:
         summary.interrupted = True

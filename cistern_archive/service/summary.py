@@ -13,6 +13,10 @@ from cistern_archive.core.files import write_json_atomic
 SUMMARY_SCHEMA_VERSION = 1
 
 
+SUMMARY_NAME = "summary.json"
+"""The rebuild's summary file in ``OUT``."""
+
+
 class SiteOutcome(BaseModel):
     """One site of a rebuild."""
 
