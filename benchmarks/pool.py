@@ -5,14 +5,14 @@ speckle, multipath, spikes, the vehicle's own echo and a biased, noisy compass) 
 (the simulator's writer, as ``cistern-archive simulate`` does) and builds that site record with the
 pipeline runner (:func:`cistern_archive.pipeline.runner.build_site`, no rendering): segmentation,
 the localizer's pairs (both rounds), matcher, localizer, mapper and comparator with the record's
-references (10 probes each). ``--matcher NAME`` runs another matcher plugin than the record's (e.g.
-``pf-pairwise``); ``--STAGE-param`` overrides a stage's parameters in the record (a dotted key such as
+references (10 probes each). ``--STAGE NAME`` runs another plugin for that stage than the record's (e.g.
+``--matcher pf-pairwise --localizer wls``, the pipeline of the paper); ``--STAGE-param`` overrides a stage's parameters in the record (a dotted key such as
 ``filter.n_particles=300`` sets one field of a parameter section).
 The site time is the runner's, without configuring and loading the scans.
 
 Usage::
 
-    .venv/bin/python benchmarks/pool.py [--seeds 20] [--json] [--matcher NAME] [--matcher-param key=value ...]
+    .venv/bin/python benchmarks/pool.py [--seeds 20] [--json] [--STAGE NAME] [--STAGE-param key=value ...]
 
 A pair counts as a success when it converged within 0.10 m of the truth displacement expressed in the
 reference scan's compass frame (the map is drawn with the measured compass, so a common compass bias
@@ -34,7 +34,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 from cistern_archive.catalog.loader import load_record  # noqa: E402
+from cistern_archive.catalog.models import StageChoice  # noqa: E402
 from cistern_archive.evaluation import in_compass_frame  # noqa: E402
+from cistern_archive.pipeline.contracts import STAGES  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
 from cistern_archive.simulation.output import write_site  # noqa: E402
@@ -96,26 +98,24 @@ def expected_displacement(sim, i: int, j: int) -> np.ndarray:
     return in_compass_frame(d, a.scan.yaw_rad - a.pose.yaw_rad)
 
 
-def seed_record(seed: int, spec, root: Path, overrides: dict[str, dict], matcher: str | None = None):
+def seed_record(seed: int, spec, root: Path, overrides: dict[str, dict], plugins: dict[str, str] | None = None):
     """The pool simulated with ``seed`` as a site record in the catalog ``root``, with the stage
-    parameter ``overrides`` (and the matcher plugin ``matcher`` instead of the record's, with its own
-    defaults); returns the loaded record and the simulation (for its truth)."""
+    parameter ``overrides`` (and ``plugins``, stage → plugin name, instead of the record's, each with its
+    own defaults); returns the loaded record and the simulation (for its truth)."""
     sim = simulate_site(spec.model_copy(update={"seed": seed}))
     loaded = load_record(write_site(sim, root, record_dir="sites"), root)
     record = default_registry().resolve(loaded.record)
     pipeline = record.pipeline
-    if matcher is not None:
-        pipeline = pipeline.model_copy(update={"matcher": pipeline.matcher.model_copy(
-            update={"plugin": matcher, "params": {}})})
+    pipeline = pipeline.model_copy(update={stage: StageChoice(plugin=name) for stage, name in (plugins or {}).items()})
     stages = {stage: getattr(pipeline, stage).model_copy(
         update={"params": merged(getattr(pipeline, stage).params, overrides[stage])}) for stage in overrides}
     record = record.model_copy(update={"pipeline": pipeline.model_copy(update=stages)})
     return replace(loaded, record=record), sim
 
 
-def run_seed(seed: int, spec, overrides: dict[str, dict], root: Path, matcher: str | None = None) -> dict:
+def run_seed(seed: int, spec, overrides: dict[str, dict], root: Path, plugins: dict[str, str] | None = None) -> dict:
     """Build one seed's pool with the pipeline runner (:func:`build_site`) and score it."""
-    loaded, sim = seed_record(seed, spec, root / f"seed-{seed}", overrides, matcher)
+    loaded, sim = seed_record(seed, spec, root / f"seed-{seed}", overrides, plugins)
     build = build_site(loaded)
     if build.result.status != "ok":
         raise SystemExit(f"seed {seed}: the build failed: {build.result.error}")
@@ -200,16 +200,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
-    parser.add_argument("--matcher", metavar="NAME", help="matcher plugin to use instead of the record's")
-    for stage in ("matcher", "localizer", "mapper", "comparator"):
+    for stage in STAGES:
+        parser.add_argument(f"--{stage}", metavar="NAME", help=f"{stage} plugin to use instead of the record's")
         parser.add_argument(f"--{stage}-param", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args(argv)
 
     spec = load_spec(ROOT / "catalog" / "specs" / "lair-pool.yaml")
-    overrides = {stage: parse_overrides(getattr(args, f"{stage}_param"))
-                 for stage in ("matcher", "localizer", "mapper", "comparator")}
+    overrides = {stage: parse_overrides(getattr(args, f"{stage}_param")) for stage in STAGES}
     with tempfile.TemporaryDirectory(prefix="pool-") as tmp:
-        runs = [run_seed(seed, spec, overrides, Path(tmp), args.matcher)
+        plugins = {stage: getattr(args, stage) for stage in STAGES if getattr(args, stage)}
+        runs = [run_seed(seed, spec, overrides, Path(tmp), plugins)
                 for seed in range(args.first_seed, args.first_seed + args.seeds)]
     summary = summarise(runs)
     summary["params"] = runs[0]["params"]
