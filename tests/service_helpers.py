@@ -53,3 +53,15 @@ def copy_built(template: tuple[Path, Path], target: Path) -> tuple[Path, Path]:
     """Copies of a catalog and of its published reports (build keys do not depend on their location)."""
     catalog, out = template
     return copy_catalog(catalog, target / "catalog"), Path(shutil.copytree(out, target / "site", symlinks=True))
+
+
+def build_once(tmp_path_factory, *, workers: int = 1) -> tuple[Path, Path]:
+    """A generated two-site catalog rebuilt once with :data:`FAST_REPORT` (both sites ``ok``): the
+    ``(catalog, out)`` a module's tests copy with :func:`copy_built`."""
+    from cistern_archive.service.rebuild import rebuild
+
+    catalog = make_catalog(tmp_path_factory.mktemp("template") / "catalog")
+    out = catalog.parent / "site"
+    summary = rebuild(catalog, out, workers=workers, report_config=FAST_REPORT)
+    assert [s.status for s in summary.sites] == ["ok", "ok"], summary.sites
+    return catalog, out

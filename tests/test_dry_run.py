@@ -9,19 +9,14 @@ from pathlib import Path
 import pytest
 
 from cistern_archive.service.dryrun import changed_paths, dry_run
-from cistern_archive.service.rebuild import rebuild
-from service_helpers import CLI, FAST_REPORT, copy_built, make_catalog
+from service_helpers import CLI, FAST_REPORT, build_once, copy_built
 
 SITES = ["cistern-000", "cistern-001"]
 
 
 @pytest.fixture(scope="module")
 def built_once(tmp_path_factory) -> tuple[Path, Path]:
-    catalog = make_catalog(tmp_path_factory.mktemp("template") / "catalog")
-    out = catalog.parent / "site"
-    summary = rebuild(catalog, out, workers=1, report_config=FAST_REPORT)
-    assert [s.status for s in summary.sites] == ["ok", "ok"]
-    return catalog, out
+    return build_once(tmp_path_factory)
 
 
 @pytest.fixture()
