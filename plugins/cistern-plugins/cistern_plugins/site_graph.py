@@ -31,6 +31,19 @@ builds a graph over the whole site instead, in three steps.
    groups (the scans of a look-alike chamber all match into the same wrong place, so such links agree
    with each other), and with its covariance inflated by ``tentative_variance_factor``.
 
+   Which links may join two groups is a matter of evidence. A loop closure between stations far apart
+   in the visiting order must be a converged match of confidence ``bridge_confidence`` or more: the
+   scans of a look-alike chamber all match into the same wrong place, so agreeing bridges between two
+   groups cannot vouch for each other. Consecutive stations are the survey's own chain — the diver sets
+   each station within sight of the last one, as a SLAM system trusts its odometry more than a loop
+   closure — so a *sequence link* joins two groups on less: the match of consecutive stations ``i → j``
+   and the independent match ``j → i`` (each converged or tentative) agree as a 2-cycle, and the more
+   confident of the two reaches ``sequence_confidence``. That is what a gallery's neighbour pairs look
+   like: the walls fit, but a straight reach leaves the along-axis direction weak, which both the
+   calibrated confidence (0.5–0.8) and the covariance already say. Sequence links are used only when no
+   confident cluster is left (a second tier), so a confident consensus always merges first, and every
+   edge is then checked against the merged geometry as before.
+
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
    and a χ² gate that drops the worst edge while its squared Mahalanobis residual exceeds ``gate_chi2``.
@@ -73,6 +86,9 @@ class SiteGraphParams(GraphParams):
                                      "two groups of scans (matches without a confidence always may)")
     tentative_variance_factor: float = Field(25.0, ge=1, description="a tentative match's covariance is "
                                              "inflated by this, so converged matches dominate where they exist")
+    sequence_confidence: float = Field(0.5, ge=0, le=1, description="a pair of consecutive stations whose two "
+                                       "matches agree joins two groups when the more confident of the two has "
+                                       "at least this confidence (step 2 of the module docstring)")
     below: dict[str, str] = Field(default_factory=dict,
                                   description="vertical ties: station -> station it was taken directly below")
 
@@ -219,17 +235,20 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     n = len(scans)
     edges, strong, confidence = match_edges(scans, matches, p)
     confident = [c is None or c >= p.bridge_confidence for c in confidence]
+    sequence = sequence_links(edges, confidence, p)
     ties = tie_edges(scans, p)
     support = cycle_support(edges, strong, p)
     graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
     for t in ties:
         _merge(graph, t.i, t.j, gtsam.Pose2(*t.z))
-    pending = [k for k in range(len(edges)) if strong[k] or support[k] > 0]
+    pending = [k for k in range(len(edges)) if strong[k] or support[k] > 0 or sequence[k]]
     for k in range(len(edges)):
-        if not (strong[k] or support[k] > 0):
+        if not (strong[k] or support[k] > 0 or sequence[k]):
             graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
     while True:
-        best = _best_cluster(graph, edges, support, strong, confident, pending, p)
+        bridges = [s and c for s, c in zip(strong, confident)]
+        best = (_best_cluster(graph, edges, support, bridges, pending, p)
+                or _best_cluster(graph, edges, support, sequence, pending, p))
         if best is None:
             break
         members, (i, j, z) = best
@@ -250,6 +269,25 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
                                           f"{math.hypot(residual.x(), residual.y()):.2f} m and "
                                           f"{math.degrees(abs(wrap(residual.theta()))):.1f}° off")
     return graph
+
+
+def sequence_links(edges: Sequence[Edge], confidence: Sequence[float | None], p: SiteGraphParams) -> list[bool]:
+    """For every edge, whether it is a sequence link (module docstring, step 2): its scans are consecutive
+    stations, the reverse match of the pair agrees with it, and the more confident of the two has at
+    least ``sequence_confidence`` (a match without a confidence counts as sure)."""
+    by_pair: dict[tuple[int, int], list[int]] = {}
+    for k, e in enumerate(edges):
+        by_pair.setdefault((e.i, e.j), []).append(k)
+    out = [False] * len(edges)
+    for k, e in enumerate(edges):
+        if abs(e.i - e.j) != 1:
+            continue
+        z = gtsam.Pose2(*e.z)
+        for k2 in by_pair.get((e.j, e.i), []):
+            sure = max(1.0 if c is None else c for c in (confidence[k], confidence[k2]))
+            if sure >= p.sequence_confidence and _close(z.compose(gtsam.Pose2(*edges[k2].z)), p, z):
+                out[k] = True
+    return out
 
 
 def cycle_support(edges: Sequence[Edge], strong: Sequence[bool], p: SiteGraphParams) -> list[int]:
@@ -303,13 +341,13 @@ def _frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
     return graph.pose[e.i].compose(gtsam.Pose2(*e.z)).compose(graph.pose[e.j].inverse())
 
 
-def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], strong: Sequence[bool],
-                  confident: Sequence[bool], pending: Sequence[int], p: SiteGraphParams):
-    """The largest-consensus cluster of pending edges between two groups that holds at least one
-    converged match of confidence ``bridge_confidence`` or more, as (edge indices, (i, j, z)) ready for
-    :func:`_merge`, or ``None`` when there is none. Tentative matches never join two groups on their
-    own, nor do barely accepted ones: every scan of a look-alike chamber matches into the same wrong
-    place, so such bridges to one group corroborate each other."""
+def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], bridges: Sequence[bool],
+                  pending: Sequence[int], p: SiteGraphParams):
+    """The largest-consensus cluster of pending edges between two groups that holds at least one edge
+    allowed to join two groups (``bridges``: a confident converged match, or a sequence link), as (edge
+    indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is none. Other matches never
+    join two groups on their own: every scan of a look-alike chamber matches into the same wrong place,
+    so such bridges to one group corroborate each other."""
     by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k in pending:
         e = edges[k]
@@ -323,7 +361,7 @@ def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], s
     for (ga, gb), items in sorted(by_pair.items()):
         for k, offset in items:
             members = [k2 for k2, o2 in items if _close(offset.between(o2), p, offset)]
-            if not any(strong[k2] and confident[k2] for k2 in members):
+            if not any(bridges[k2] for k2 in members):
                 continue
             score = sum(1 + support[k2] for k2 in members)
             if score > best_score:
