@@ -147,3 +147,35 @@ def test_only_a_confident_match_joins_two_groups():
     # within a group a barely accepted match still adds its constraint
     inside = consistent_edges(_scans(4), groups + [_match(1, 2, confidence=0.97), _match(0, 2, confidence=0.75)], p)
     assert (0, 2) in {(e.i, e.j) for e in inside.edges}
+
+
+def test_consecutive_stations_whose_two_matches_agree_join_two_groups():
+    """A gallery: each neighbour pair matched both ways, moderately confident (weak along the axis);
+    a sequence link joins the groups, a lone moderate loop closure or a disagreeing reverse does not."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams(bridge_confidence=0.9, sequence_confidence=0.5)
+    chain = [_match(i, j, converged=False, tentative=True, confidence=0.6)
+             for i in range(5) for j in (i - 1, i + 1) if 0 <= j < 5]
+    poses = loc.localize(_scans(5), chain, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+    unsure = [_match(m.i, m.j, converged=False, tentative=True, confidence=0.4) for m in chain]
+    assert not loc.localize(_scans(5), unsure, p).placed[1:].any()
+    groups = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    loop = groups + [_match(0, 2, confidence=0.75), _match(2, 0, confidence=0.75)]  # not consecutive
+    assert loc.localize(_scans(4), loop, p).placed.tolist() == [True, True, False, False]
+    disagree = groups + [_match(1, 2, confidence=0.75), _match(2, 1, offset=(0.5, 0.0), confidence=0.75)]
+    assert loc.localize(_scans(4), disagree, p).placed.tolist() == [True, True, False, False]
+    agree = groups + [_match(1, 2, confidence=0.75), _match(2, 1, confidence=0.75)]
+    assert loc.localize(_scans(4), agree, p).placed.all()
+
+
+def test_a_confident_cluster_merges_before_a_sequence_link():
+    """Two ways to join s2 and s3: a wrong but agreeing consecutive pair and a right, confident, better
+    supported cluster; the confident one merges first and the sequence link is rejected against it."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    ms = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    ms += [_match(1, 2, offset=(1.0, 0.0), confidence=0.6), _match(2, 1, offset=(-1.0, 0.0), confidence=0.6)]
+    ms += [_match(0, 2, confidence=0.95), _match(1, 3, confidence=0.95)]
+    graph = consistent_edges(_scans(4), ms, p)
+    assert "inconsistent" in graph.rejected[(1, 2)]
+    poses = loc.localize(_scans(4), ms, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6

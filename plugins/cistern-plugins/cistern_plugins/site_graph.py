@@ -235,7 +235,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     n = len(scans)
     edges, strong, confidence = match_edges(scans, matches, p)
     confident = [c is None or c >= p.bridge_confidence for c in confidence]
-    sequence = sequence_links(edges, confidence, p)
+    sequence = sequence_links(edges, strong, confidence, p)
     ties = tie_edges(scans, p)
     support = cycle_support(edges, strong, p)
     graph = Graph(edges=[], ties=ties, group=list(range(n)), pose=[gtsam.Pose2() for _ in range(n)])
@@ -271,21 +271,23 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     return graph
 
 
-def sequence_links(edges: Sequence[Edge], confidence: Sequence[float | None], p: SiteGraphParams) -> list[bool]:
+def sequence_links(edges: Sequence[Edge], strong: Sequence[bool], confidence: Sequence[float | None],
+                   p: SiteGraphParams) -> list[bool]:
     """For every edge, whether it is a sequence link (module docstring, step 2): its scans are consecutive
     stations, the reverse match of the pair agrees with it, and the more confident of the two has at
-    least ``sequence_confidence`` (a match without a confidence counts as sure)."""
+    least ``sequence_confidence`` (without a confidence, a converged match counts as sure and a
+    tentative one as not)."""
     by_pair: dict[tuple[int, int], list[int]] = {}
     for k, e in enumerate(edges):
         by_pair.setdefault((e.i, e.j), []).append(k)
+    sure = [float(strong[k]) if c is None else c for k, c in enumerate(confidence)]
     out = [False] * len(edges)
     for k, e in enumerate(edges):
         if abs(e.i - e.j) != 1:
             continue
         z = gtsam.Pose2(*e.z)
         for k2 in by_pair.get((e.j, e.i), []):
-            sure = max(1.0 if c is None else c for c in (confidence[k], confidence[k2]))
-            if sure >= p.sequence_confidence and _close(z.compose(gtsam.Pose2(*edges[k2].z)), p, z):
+            if max(sure[k], sure[k2]) >= p.sequence_confidence and _close(z.compose(gtsam.Pose2(*edges[k2].z)), p, z):
                 out[k] = True
     return out
 
