@@ -72,7 +72,7 @@ def test_a_single_wrong_bridge_loses_to_the_consensus_of_two():
     """Two groups joined by two agreeing matches and one wrong one: the wrong one is rejected."""
     loc, p = SiteGraphLocalizer(), SiteGraphParams()
     ms = [_match(0, 1), _match(1, 0), _match(3, 4), _match(4, 3), _match(4, 5), _match(5, 4), _match(3, 5),
-          _match(1, 3), _match(0, 3), _match(1, 4, offset=(2.0, 1.0))]
+          _match(1, 3), _match(0, 4), _match(1, 4, offset=(2.0, 1.0))]
     ms += [_match(1, 2), _match(2, 1)]
     poses = loc.localize(_scans(6), ms, p)
     assert poses.placed.all() and _placed_error(poses).max() < 1e-6
@@ -137,16 +137,23 @@ def test_tentative_bridges_agreeing_with_each_other_do_not_join_two_groups():
     assert poses.placed.tolist() == [True, True, False, False]
 
 
-def test_only_a_confident_match_joins_two_groups():
+def test_only_confident_loop_closures_from_two_stations_each_side_join_two_groups():
+    """Groups {s1, s2} and {s4, s5} (s3 between them matched nothing): loop closures join them only when
+    confident and seen from two stations of each group; a lone confident one may still join a single scan."""
     loc, p = SiteGraphLocalizer(), SiteGraphParams(bridge_confidence=0.9)
-    groups = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
-    barely = loc.localize(_scans(4), groups + [_match(1, 2, confidence=0.75)], p)
-    assert barely.placed.tolist() == [True, True, False, False]
-    sure = loc.localize(_scans(4), groups + [_match(1, 2, confidence=0.97)], p)
-    assert sure.placed.all() and _placed_error(sure).max() < 1e-6
+    groups = [_match(0, 1), _match(1, 0), _match(3, 4), _match(4, 3)]
+    barely = loc.localize(_scans(5), groups + [_match(0, 3, confidence=0.75), _match(1, 4, confidence=0.75)], p)
+    assert barely.placed.tolist() == [True, True, False, False, False]
+    lone = loc.localize(_scans(5), groups + [_match(1, 3, confidence=0.97), _match(1, 4, confidence=0.97)], p)
+    assert lone.placed.tolist() == [True, True, False, False, False]  # one station of {s1, s2} sees them
+    sure = loc.localize(_scans(5), groups + [_match(0, 3, confidence=0.97), _match(1, 4, confidence=0.97)], p)
+    assert sure.placed.tolist() == [True, True, False, True, True] and _placed_error(sure)[[0, 1, 3, 4]].max() < 1e-6
+    single = loc.localize(_scans(5), groups + [_match(0, 2, confidence=0.97)], p)
+    assert single.placed.tolist() == [True, True, True, False, False]
     # within a group a barely accepted match still adds its constraint
-    inside = consistent_edges(_scans(4), groups + [_match(1, 2, confidence=0.97), _match(0, 2, confidence=0.75)], p)
-    assert (0, 2) in {(e.i, e.j) for e in inside.edges}
+    inside = consistent_edges(_scans(5), groups + [_match(0, 3, confidence=0.97), _match(1, 4, confidence=0.97),
+                                                   _match(0, 4, confidence=0.75)], p)
+    assert (0, 4) in {(e.i, e.j) for e in inside.edges}
 
 
 def test_consecutive_stations_whose_two_matches_agree_join_two_groups():
@@ -168,12 +175,14 @@ def test_consecutive_stations_whose_two_matches_agree_join_two_groups():
     assert loc.localize(_scans(4), agree, p).placed.all()
 
 
-def test_a_confident_cluster_merges_before_a_sequence_link():
-    """Two ways to join s2 and s3: a wrong but agreeing consecutive pair and a right, confident, better
-    supported cluster; the confident one merges first and the sequence link is rejected against it."""
+def test_confident_loop_closures_merge_before_a_tentative_sequence_link():
+    """Two ways to join {s1, s2} and {s3, s4}: a wrong but agreeing pair of tentative matches of s2 and s3
+    and right, confident loop closures from two stations each side; the loop closures merge first and
+    the sequence link is rejected against them."""
     loc, p = SiteGraphLocalizer(), SiteGraphParams()
     ms = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
-    ms += [_match(1, 2, offset=(1.0, 0.0), confidence=0.6), _match(2, 1, offset=(-1.0, 0.0), confidence=0.6)]
+    ms += [_match(1, 2, offset=(1.0, 0.0), converged=False, tentative=True, confidence=0.6),
+           _match(2, 1, offset=(-1.0, 0.0), converged=False, tentative=True, confidence=0.6)]
     ms += [_match(0, 2, confidence=0.95), _match(1, 3, confidence=0.95)]
     graph = consistent_edges(_scans(4), ms, p)
     assert "inconsistent" in graph.rejected[(1, 2)]
