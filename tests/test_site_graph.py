@@ -188,3 +188,16 @@ def test_confident_loop_closures_merge_before_a_tentative_sequence_link():
     assert "inconsistent" in graph.rejected[(1, 2)]
     poses = loc.localize(_scans(4), ms, p)
     assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+
+
+def test_a_group_with_one_scan_at_the_bridge_level_joins_by_one_loop_closure():
+    """A bell-shaped cistern: {s1, s2} at one depth, {s3, s4} joined by a vertical tie (s4 below s3). Only
+    s3 of the second group can be matched at the first depth, so a confident loop closure from one
+    station there is all the evidence there can be."""
+    loc = SiteGraphLocalizer()
+    scans = _scans(4, depths=[1.0, 1.0, 1.0, 2.0])
+    p = SiteGraphParams(below={"s4": "s3"})
+    ms = [_match(0, 1), _match(1, 0), _match(0, 2, confidence=0.97)]
+    poses = loc.localize(scans, ms, p)
+    assert poses.placed.all()
+    np.testing.assert_allclose(poses.xy_m[2] - poses.xy_m[0], TRUTH[2] - TRUTH[0], atol=1e-6)

@@ -257,7 +257,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     while True:
         best = None
         for bridges, loop_closures in tiers:
-            best = _best_cluster(graph, edges, support, bridges, pending, p, loop_closures)
+            best = _best_cluster(graph, scans, edges, support, bridges, pending, p, loop_closures)
             if best is not None:
                 break
         if best is None:
@@ -357,15 +357,15 @@ def _frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
     return graph.pose[e.i].compose(gtsam.Pose2(*e.z)).compose(graph.pose[e.j].inverse())
 
 
-def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], bridges: Sequence[bool],
-                  pending: Sequence[int], p: SiteGraphParams, loop_closures: bool = False):
+def _best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge], support: Sequence[int],
+                  bridges: Sequence[bool], pending: Sequence[int], p: SiteGraphParams, loop_closures: bool = False):
     """The largest-consensus cluster of pending edges between two groups that holds at least one edge
     allowed to join two groups (``bridges``: confident loop closures, or sequence links), as (edge
     indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is none. Other matches never
     join two groups on their own: every scan of a look-alike chamber matches into the same wrong place,
     so such bridges to one group corroborate each other. With ``loop_closures``, a cluster that joins
-    two groups of several scans each must hold bridges from two stations on each side
-    (:func:`_seen_from_two_stations`)."""
+    two groups of several scans each (at the depth level of the other group: :func:`_several_each_side`)
+    must hold bridges from two stations on each side (:func:`_seen_from_two_stations`)."""
     by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k in pending:
         e = edges[k]
@@ -381,7 +381,7 @@ def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], b
             members = [k2 for k2, o2 in items if _close(offset.between(o2), p, offset)]
             if not any(bridges[k2] for k2 in members):
                 continue
-            if loop_closures and len(graph.members(ga)) > 1 and len(graph.members(gb)) > 1 \
+            if loop_closures and _several_each_side(graph, scans, ga, gb, p) \
                     and not _seen_from_two_stations(graph, [edges[k2] for k2 in members if bridges[k2]], ga):
                 continue
             score = sum(1 + support[k2] for k2 in members)
@@ -395,6 +395,17 @@ def _best_cluster(graph: Graph, edges: Sequence[Edge], support: Sequence[int], b
     anchor_b = graph.members(gb)[0]
     z = graph.pose[anchor_a].inverse().compose(offset).compose(graph.pose[anchor_b])
     return members, (anchor_a, anchor_b, z)
+
+
+def _several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int, p: SiteGraphParams) -> bool:
+    """Whether each of two groups has at least two scans that could be matched with the other group (at
+    the depth level of one of its scans): only then can loop closures come from two stations a side."""
+    a, b = graph.members(ga), graph.members(gb)
+
+    def matchable(here: list[int], there: list[int]) -> int:
+        return sum(any(same_level(scans[k], scans[m], p) for m in there) for k in here)
+
+    return matchable(a, b) > 1 and matchable(b, a) > 1
 
 
 def _seen_from_two_stations(graph: Graph, bridges: Sequence[Edge], g: int) -> bool:
