@@ -72,6 +72,7 @@ from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses, StageParams
 from cistern_archive.core.scan import RangeScan
+from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, wrap
 from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.wls import vertical_ties
@@ -254,15 +255,22 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
             graph.rejected[(edges[k].i, edges[k].j)] = "not converged, and no converged match corroborates it"
     loops = [s and c for s, c in zip(strong, confident)]
     tiers = (([s and c for s, c in zip(sequence, strong)], False), (loops, True), (sequence, False))
+    walls = WallCheck(scans, p)
     while True:
-        best = None
-        for bridges, loop_closures in tiers:
+        best, tier = None, 0
+        for tier, (bridges, loop_closures) in enumerate(tiers):
             best = _best_cluster(graph, scans, edges, support, bridges, pending, p, loop_closures)
             if best is not None:
                 break
         if best is None:
             break
         members, (i, j, z) = best
+        why = walls.conflict(graph, i, j, z) if tier > 0 else ""
+        if why:
+            for k in members:
+                graph.rejected[(edges[k].i, edges[k].j)] = why
+            pending = [k for k in pending if k not in members]
+            continue
         _merge(graph, i, j, z)
         graph.edges += [edges[k] for k in members]
         pending = [k for k in pending if k not in members]
@@ -395,6 +403,51 @@ def _best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge
     anchor_b = graph.members(gb)[0]
     z = graph.pose[anchor_a].inverse().compose(offset).compose(graph.pose[anchor_b])
     return members, (anchor_a, anchor_b, z)
+
+
+class WallCheck:
+    """Whether joining two groups would put the walls one group's sonars saw into the water the other
+    group's sonars saw (module docstring, step 2): every pair of scans of the two groups at one depth
+    level and within sonar range, placed as the merge would place them, is assessed both ways
+    (:meth:`~cistern_plugins.alignment.ReferenceModel.assess_pair`); among the pairs that would share
+    walls (``min_inliers`` inliers or more), the median free-space violation share must not exceed
+    ``max_violation_ratio`` (the fixed verification limits). A look-alike chamber fits the scans it was
+    matched with, not the others that see it from elsewhere."""
+
+    def __init__(self, scans: Sequence[RangeScan], p: SiteGraphParams):
+        self.scans, self.p = scans, p
+        self.limits = ConvergenceThresholds()
+        self.models: dict[int, ReferenceModel] = {}
+
+    def model(self, k: int) -> ReferenceModel:
+        if k not in self.models:
+            self.models[k] = ReferenceModel(self.scans[k])
+        return self.models[k]
+
+    def conflict(self, graph: Graph, i: int, j: int, z: gtsam.Pose2) -> str:
+        """Empty when the merge of ``j``'s group into ``i``'s (:func:`_merge`) leaves the walls in place,
+        else the reason, naming the stations of the worst pair."""
+        offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+        shares: list[tuple[float, int, int]] = []
+        for a in graph.members(graph.group[i]):
+            for b in graph.members(graph.group[j]):
+                sa, sb = self.scans[a], self.scans[b]
+                rel = graph.pose[a].between(offset.compose(graph.pose[b]))
+                if not same_level(sa, sb, self.p) or math.hypot(rel.x(), rel.y()) > min(sa.max_range_m, sb.max_range_m):
+                    continue
+                q = self.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), self.limits)
+                if q.inliers >= self.limits.min_inliers:
+                    shares.append((q.violation_ratio, a, b))
+        if not shares:
+            return ""
+        median = float(np.median([v for v, _, _ in shares]))
+        if median <= self.limits.max_violation_ratio:
+            return ""
+        worst, a, b = max(shares)
+        name = [s.station or str(k) for k, s in enumerate(self.scans)]
+        return (f"joining its groups would put walls into water other scans saw: a median {100 * median:.0f} % "
+                f"of wall points in the other scan's free space over {len(shares)} pairs "
+                f"(worst {name[a]} – {name[b]}, {100 * worst:.0f} %)")
 
 
 def _several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int, p: SiteGraphParams) -> bool:
