@@ -146,6 +146,7 @@ def test_only_confident_loop_closures_from_two_stations_each_side_join_two_group
     assert barely.placed.tolist() == [True, True, False, False, False]
     lone = loc.localize(_scans(5), groups + [_match(1, 3, confidence=0.97), _match(1, 4, confidence=0.97)], p)
     assert lone.placed.tolist() == [True, True, False, False, False]  # one station of {s1, s2} sees them
+    assert "s2 → s4: converged, but no link strong enough" in lone.reasons[3]
     sure = loc.localize(_scans(5), groups + [_match(0, 3, confidence=0.97), _match(1, 4, confidence=0.97)], p)
     assert sure.placed.tolist() == [True, True, False, True, True] and _placed_error(sure)[[0, 1, 3, 4]].max() < 1e-6
     single = loc.localize(_scans(5), groups + [_match(0, 2, confidence=0.97)], p)

@@ -25,10 +25,11 @@ builds a graph over the whole site instead, in three steps.
    sum of ``1 + support`` over its edges; the best cluster of all merges its two groups. An edge that
    disagrees with the merged geometry is rejected, with the distance by which it disagrees. A single
    match may join two groups when nothing contradicts it and it is evidence enough (below) — a scan is
-   unplaced only when no consistent chain of matches reaches it. A *tentative* match (not converged, but refused only for a rival peak
-   a weak direction or a confidence below the threshold, ``MatchResult.tentative``) takes part only
-   when a consistent cycle with a converged match corroborates it or it is part of a sequence link
-   (below), and with its covariance inflated by ``tentative_variance_factor``.
+   unplaced only when no consistent chain of matches reaches it. A *tentative* match (not converged,
+   but refused only for a rival peak, a weak direction or a confidence below the threshold,
+   ``MatchResult.tentative``) takes part only when a consistent cycle with a converged match
+   corroborates it or it is part of a sequence link (below), and with its covariance inflated by
+   ``tentative_variance_factor``.
 
    Which links may join two groups is a matter of evidence. A loop closure between stations far apart
    in the visiting order must be a converged match of confidence ``bridge_confidence`` or more: the
@@ -281,7 +282,11 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     for k in pending:
         e = edges[k]
         if graph.group[e.i] != graph.group[e.j]:
-            graph.rejected[(e.i, e.j)] = "not converged, and no converged match joins its two stations' groups"
+            graph.rejected[(e.i, e.j)] = (
+                "converged, but no link strong enough joins its two stations' groups (a loop closure needs "
+                f"confidence {p.bridge_confidence:.2f} or more and, between groups of several scans, two "
+                "stations on each side)" if strong[k] else
+                "not converged, and no converged match joins its two stations' groups")
             continue
         solved = graph.pose[e.i].between(graph.pose[e.j])
         residual = solved.between(gtsam.Pose2(*e.z))
