@@ -72,7 +72,7 @@ def test_a_single_wrong_bridge_loses_to_the_consensus_of_two():
     """Two groups joined by two agreeing matches and one wrong one: the wrong one is rejected."""
     loc, p = SiteGraphLocalizer(), SiteGraphParams()
     ms = [_match(0, 1), _match(1, 0), _match(3, 4), _match(4, 3), _match(4, 5), _match(5, 4), _match(3, 5),
-          _match(1, 3), _match(0, 3), _match(1, 4, offset=(2.0, 1.0))]
+          _match(1, 3), _match(0, 4), _match(1, 4, offset=(2.0, 1.0))]
     ms += [_match(1, 2), _match(2, 1)]
     poses = loc.localize(_scans(6), ms, p)
     assert poses.placed.all() and _placed_error(poses).max() < 1e-6
@@ -138,13 +138,92 @@ def test_tentative_bridges_agreeing_with_each_other_do_not_join_two_groups():
     assert poses.placed.tolist() == [True, True, False, False]
 
 
-def test_only_a_confident_match_joins_two_groups():
+def test_only_confident_loop_closures_from_two_stations_each_side_join_two_groups():
+    """Groups {s1, s2} and {s4, s5} (s3 between them matched nothing): loop closures join them only when
+    confident and seen from two stations of each group; a lone confident one may still join a single scan."""
     loc, p = SiteGraphLocalizer(), SiteGraphParams(bridge_confidence=0.9)
-    groups = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
-    barely = loc.localize(_scans(4), groups + [_match(1, 2, confidence=0.75)], p)
-    assert barely.placed.tolist() == [True, True, False, False]
-    sure = loc.localize(_scans(4), groups + [_match(1, 2, confidence=0.97)], p)
-    assert sure.placed.all() and _placed_error(sure).max() < 1e-6
+    groups = [_match(0, 1), _match(1, 0), _match(3, 4), _match(4, 3)]
+    barely = loc.localize(_scans(5), groups + [_match(0, 3, confidence=0.75), _match(1, 4, confidence=0.75)], p)
+    assert barely.placed.tolist() == [True, True, False, False, False]
+    lone = loc.localize(_scans(5), groups + [_match(1, 3, confidence=0.97), _match(1, 4, confidence=0.97)], p)
+    assert lone.placed.tolist() == [True, True, False, False, False]  # one station of {s1, s2} sees them
+    assert "s2 → s4: converged, but no link strong enough" in lone.reasons[3]
+    sure = loc.localize(_scans(5), groups + [_match(0, 3, confidence=0.97), _match(1, 4, confidence=0.97)], p)
+    assert sure.placed.tolist() == [True, True, False, True, True] and _placed_error(sure)[[0, 1, 3, 4]].max() < 1e-6
+    single = loc.localize(_scans(5), groups + [_match(0, 2, confidence=0.97)], p)
+    assert single.placed.tolist() == [True, True, True, False, False]
     # within a group a barely accepted match still adds its constraint
-    inside = consistent_edges(_scans(4), groups + [_match(1, 2, confidence=0.97), _match(0, 2, confidence=0.75)], p)
-    assert (0, 2) in {(e.i, e.j) for e in inside.edges}
+    inside = consistent_edges(_scans(5), groups + [_match(0, 3, confidence=0.97), _match(1, 4, confidence=0.97),
+                                                   _match(0, 4, confidence=0.75)], p)
+    assert (0, 4) in {(e.i, e.j) for e in inside.edges}
+
+
+def test_consecutive_stations_whose_two_matches_agree_join_two_groups():
+    """A gallery: each neighbour pair matched both ways, moderately confident (weak along the axis);
+    a sequence link joins the groups, a lone moderate loop closure or a disagreeing reverse does not."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams(bridge_confidence=0.9, sequence_confidence=0.5)
+    chain = [_match(i, j, converged=False, tentative=True, confidence=0.6)
+             for i in range(5) for j in (i - 1, i + 1) if 0 <= j < 5]
+    poses = loc.localize(_scans(5), chain, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+    unsure = [_match(m.i, m.j, converged=False, tentative=True, confidence=0.4) for m in chain]
+    assert not loc.localize(_scans(5), unsure, p).placed[1:].any()
+    groups = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    loop = groups + [_match(0, 2, confidence=0.75), _match(2, 0, confidence=0.75)]  # not consecutive
+    assert loc.localize(_scans(4), loop, p).placed.tolist() == [True, True, False, False]
+    disagree = groups + [_match(1, 2, confidence=0.75), _match(2, 1, offset=(0.5, 0.0), confidence=0.75)]
+    assert loc.localize(_scans(4), disagree, p).placed.tolist() == [True, True, False, False]
+    agree = groups + [_match(1, 2, confidence=0.75), _match(2, 1, confidence=0.75)]
+    assert loc.localize(_scans(4), agree, p).placed.all()
+
+
+def test_confident_loop_closures_merge_before_a_tentative_sequence_link():
+    """Two ways to join {s1, s2} and {s3, s4}: a wrong but agreeing pair of tentative matches of s2 and s3
+    and right, confident loop closures from two stations each side; the loop closures merge first and
+    the sequence link is rejected against them."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    ms = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    ms += [_match(1, 2, offset=(1.0, 0.0), converged=False, tentative=True, confidence=0.6),
+           _match(2, 1, offset=(-1.0, 0.0), converged=False, tentative=True, confidence=0.6)]
+    ms += [_match(0, 2, confidence=0.95), _match(1, 3, confidence=0.95)]
+    graph = consistent_edges(_scans(4), ms, p)
+    assert "inconsistent" in graph.rejected[(1, 2)]
+    poses = loc.localize(_scans(4), ms, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+
+
+def test_a_group_with_one_scan_at_the_bridge_level_joins_by_one_loop_closure():
+    """A bell-shaped cistern: {s1, s2} at one depth, {s3, s4} joined by a vertical tie (s4 below s3). Only
+    s3 of the second group can be matched at the first depth, so a confident loop closure from one
+    station there is all the evidence there can be."""
+    loc = SiteGraphLocalizer()
+    scans = _scans(4, depths=[1.0, 1.0, 1.0, 2.0])
+    p = SiteGraphParams(below={"s4": "s3"})
+    ms = [_match(0, 1), _match(1, 0), _match(0, 2, confidence=0.97)]
+    poses = loc.localize(scans, ms, p)
+    assert poses.placed.all()
+    np.testing.assert_allclose(poses.xy_m[2] - poses.xy_m[0], TRUTH[2] - TRUTH[0], atol=1e-6)
+
+
+def test_a_join_that_puts_walls_into_water_other_scans_saw_is_refused():
+    """Group {s3, s4} is a 4 m room; put where a look-alike match would put it, at the near end of the
+    8 m room of group {s1, s2}, its far wall crosses the water s1 and s2 saw beyond it. The same join
+    with s3 and s4 really in the 8 m room is accepted."""
+    from cistern_archive.grid.polygon import polygon_scan, rectangle
+    from cistern_plugins.site_graph import Graph, WallCheck
+    import gtsam
+
+    long_room, short_room = [rectangle(8.0, 3.0, centre=(4.0, 1.5))], [rectangle(4.0, 3.0, centre=(2.0, 1.5))]
+    xy = [(2.0, 1.5), (6.0, 1.5), (1.0, 1.5), (3.0, 1.5)]
+
+    def site(rooms):
+        scans = [polygon_scan(room, xy[k], 0.0, rng=np.random.default_rng(k), n_beams=200, range_noise_m=0.01)
+                 for k, room in enumerate(rooms)]
+        graph = Graph(edges=[], ties=[], group=[0, 0, 2, 2], pose=[gtsam.Pose2(x, y, 0.0) for x, y in xy])
+        graph.pose[2:] = [gtsam.Pose2(0.0, 0.0, 0.0), gtsam.Pose2(2.0, 0.0, 0.0)]  # group {s3, s4} in its own frame
+        z = gtsam.Pose2(-1.0, 0.0, 0.0)  # s3 placed 1 m west of s1, where both rooms have their west wall
+        return WallCheck(scans, SiteGraphParams()).conflict(graph, 0, 2, z)
+
+    why = site([long_room] * 2 + [short_room] * 2)
+    assert "free space" in why, why
+    assert site([long_room] * 4) == ""
