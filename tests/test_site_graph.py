@@ -198,9 +198,9 @@ def test_a_group_with_one_scan_at_the_bridge_level_joins_by_one_loop_closure():
     station there is all the evidence there can be."""
     loc = SiteGraphLocalizer()
     scans = _scans(4, depths=[1.0, 1.0, 1.0, 2.0])
-    p = SiteGraphParams(below={"s4": "s3"})
+    p = SiteGraphParams()
     ms = [_match(0, 1), _match(1, 0), _match(0, 2, confidence=0.97)]
-    poses = loc.localize(scans, ms, p)
+    poses = loc.localize(scans, ms, p, ties=[VerticalTie(lower="s4", upper="s3")])
     assert poses.placed.all()
     np.testing.assert_allclose(poses.xy_m[2] - poses.xy_m[0], TRUTH[2] - TRUTH[0], atol=1e-6)
 
