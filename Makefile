@@ -27,7 +27,7 @@ demo: $(STAMP)
 # the plugins' contracts (matchers share helpers only through cistern_plugins.registration).
 test: $(STAMP)
 	$(BIN)/lint-imports --no-cache
-	$(BIN)/lint-imports --no-cache --config plugins/cistern-plugins/pyproject.toml
+	$(BIN)/lint-imports --no-cache plugins/cistern-plugins/pyproject.toml
 	$(BIN)/python -m pytest -m "not slow" -q
 
 # pytest exits 5 when no test is marked slow; that is not a failure.

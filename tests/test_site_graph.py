@@ -210,7 +210,7 @@ def test_a_join_that_puts_walls_into_water_other_scans_saw_is_refused():
     8 m room of group {s1, s2}, its far wall crosses the water s1 and s2 saw beyond it. The same join
     with s3 and s4 really in the 8 m room is accepted."""
     from cistern_archive.grid.polygon import polygon_scan, rectangle
-    from cistern_plugins.site_graph import Graph, WallCheck
+    from cistern_plugins.site_groups import Graph, WallCheck
     import gtsam
 
     long_room, short_room = [rectangle(8.0, 3.0, centre=(4.0, 1.5))], [rectangle(4.0, 3.0, centre=(2.0, 1.5))]

@@ -1,0 +1,239 @@
+"""The groups of site-graph's consensus: cycle support, sequence-link order, the consistent clusters that
+join two groups, the wall check that refuses a join putting walls into water, and the reasons of the
+scans left apart (steps 1–2 of :mod:`cistern_plugins.site_graph`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import gtsam
+import numpy as np
+
+from cistern_archive.core.matches import MatchResult
+from cistern_archive.core.scan import RangeScan
+from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
+from cistern_plugins.factor_graph import Edge, wrap
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cistern_plugins.site_graph import SiteGraphParams
+
+
+def same_level(a: RangeScan, b: RangeScan, p: SiteGraphParams) -> bool:
+    """Whether two scans were taken at one depth level (both depths unknown counts as one level)."""
+    if not (math.isfinite(a.depth_m) and math.isfinite(b.depth_m)):
+        return True
+    return abs(a.depth_m - b.depth_m) <= p.level_tolerance_m
+
+
+@dataclass
+class Graph:
+    """Where the consensus left the site: accepted edges, groups, poses within each group, and why
+    each rejected match was rejected."""
+
+    edges: list[Edge]
+    ties: list[Edge]
+    group: list[int]
+    pose: list[gtsam.Pose2]
+    rejected: dict[tuple[int, int], str] = field(default_factory=dict)
+
+    def members(self, g: int) -> list[int]:
+        return [k for k, h in enumerate(self.group) if h == g]
+
+
+def cycle_support(edges: Sequence[Edge], strong: Sequence[bool], p: SiteGraphParams) -> list[int]:
+    """For every edge, how many consistent cycles it closes: an agreeing reverse match and every
+    consistent triangle of edges (module docstring, step 2). A tentative edge (``strong`` false) counts
+    only the cycles in which another edge is a converged match: tentative matches cannot vouch for each
+    other (two matches of a scan pair that both fell for the same look-alike place agree too)."""
+    rel: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
+    for k, e in enumerate(edges):
+        z = gtsam.Pose2(*e.z)
+        rel.setdefault((e.i, e.j), []).append((k, z))
+        rel.setdefault((e.j, e.i), []).append((k, z.inverse()))
+    support = [0] * len(edges)
+
+    def credit(cycle: Sequence[int]) -> None:
+        for k in cycle:
+            if strong[k] or any(strong[k2] for k2 in cycle if k2 != k):
+                support[k] += 1
+
+    for k, e in enumerate(edges):
+        z = gtsam.Pose2(*e.z)
+        for k2, back in rel.get((e.i, e.j), []):
+            if k2 > k and close_enough(z.between(back), p, z):
+                credit((k, k2))
+    nodes = sorted({a for a, _ in rel})
+    for a in nodes:
+        for b in nodes:
+            if b <= a or (a, b) not in rel:
+                continue
+            for c in nodes:
+                if c <= b or (b, c) not in rel or (a, c) not in rel:
+                    continue
+                for kab, zab in rel[(a, b)]:
+                    for kbc, zbc in rel[(b, c)]:
+                        for kac, zac in rel[(a, c)]:
+                            if len({kab, kbc, kac}) == 3 and close_enough(zab.compose(zbc).between(zac), p, zac):
+                                credit((kab, kbc, kac))
+    return support
+
+
+def close_enough(residual: gtsam.Pose2, p: SiteGraphParams, span: gtsam.Pose2) -> bool:
+    """Whether a cycle's residual motion is within tolerance; the heading tolerance's lever arm over the
+    span of the cycle is allowed in translation."""
+    lever = math.hypot(span.x(), span.y()) * math.sin(math.radians(p.consistency_deg))
+    return (math.hypot(residual.x(), residual.y()) <= p.consistency_m + lever
+            and abs(wrap(residual.theta())) <= math.radians(p.consistency_deg))
+
+
+def frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
+    """Where edge ``e`` puts the group of ``e.j`` in the frame of the group of ``e.i``."""
+    return graph.pose[e.i].compose(gtsam.Pose2(*e.z)).compose(graph.pose[e.j].inverse())
+
+
+def best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge], support: Sequence[int],
+                  bridges: Sequence[bool], pending: Sequence[int], p: SiteGraphParams, loop_closures: bool = False):
+    """The largest-consensus cluster of pending edges between two groups that holds at least one edge
+    allowed to join two groups (``bridges``: confident loop closures, or sequence links), as (edge
+    indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is none. Other matches never
+    join two groups on their own: every scan of a look-alike chamber matches into the same wrong place,
+    so such bridges to one group corroborate each other. With ``loop_closures``, a cluster that joins
+    two groups of several scans each (at the depth level of the other group: :func:`several_each_side`)
+    must hold bridges from two stations on each side (:func:`seen_from_two_stations`)."""
+    by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
+    for k in pending:
+        e = edges[k]
+        gi, gj = graph.group[e.i], graph.group[e.j]
+        if gi == gj:
+            continue
+        offset = frame_offset(graph, e)
+        key, offset = ((gi, gj), offset) if gi < gj else ((gj, gi), offset.inverse())
+        by_pair.setdefault(key, []).append((k, offset))
+    best, best_score = None, -1.0
+    for (ga, gb), items in sorted(by_pair.items()):
+        for k, offset in items:
+            members = [k2 for k2, o2 in items if close_enough(offset.between(o2), p, offset)]
+            if not any(bridges[k2] for k2 in members):
+                continue
+            if loop_closures and several_each_side(graph, scans, ga, gb, p) \
+                    and not seen_from_two_stations(graph, [edges[k2] for k2 in members if bridges[k2]], ga):
+                continue
+            score = sum(1 + support[k2] for k2 in members)
+            if score > best_score:
+                best_score = score
+                best = (members, ga, gb, offset)
+    if best is None:
+        return None
+    members, ga, gb, offset = best
+    anchor_a = graph.members(ga)[0]
+    anchor_b = graph.members(gb)[0]
+    z = graph.pose[anchor_a].inverse().compose(offset).compose(graph.pose[anchor_b])
+    return members, (anchor_a, anchor_b, z)
+
+
+class WallCheck:
+    """Whether joining two groups would put the walls one group's sonars saw into the water the other
+    group's sonars saw (module docstring, step 2): every pair of scans of the two groups at one depth
+    level and within sonar range, placed as the merge would place them, is assessed both ways
+    (:meth:`~cistern_plugins.alignment.ReferenceModel.assess_pair`); among the pairs that would share
+    walls (``min_inliers`` inliers or more), the median free-space violation share must not exceed
+    ``max_violation_ratio`` (the fixed verification limits). A look-alike chamber fits the scans it was
+    matched with, not the others that see it from elsewhere."""
+
+    def __init__(self, scans: Sequence[RangeScan], p: SiteGraphParams):
+        self.scans, self.p = scans, p
+        self.limits = ConvergenceThresholds()
+        self.models: dict[int, ReferenceModel] = {}
+
+    def model(self, k: int) -> ReferenceModel:
+        if k not in self.models:
+            self.models[k] = ReferenceModel(self.scans[k])
+        return self.models[k]
+
+    def conflict(self, graph: Graph, i: int, j: int, z: gtsam.Pose2) -> str:
+        """Empty when the merge of ``j``'s group into ``i``'s (:func:`_merge`) leaves the walls in place,
+        else the reason, naming the stations of the worst pair."""
+        offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+        shares: list[tuple[float, int, int]] = []
+        for a in graph.members(graph.group[i]):
+            for b in graph.members(graph.group[j]):
+                sa, sb = self.scans[a], self.scans[b]
+                rel = graph.pose[a].between(offset.compose(graph.pose[b]))
+                if not same_level(sa, sb, self.p) or math.hypot(rel.x(), rel.y()) > min(sa.max_range_m, sb.max_range_m):
+                    continue
+                q = self.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), self.limits)
+                if q.inliers >= self.limits.min_inliers:
+                    shares.append((q.violation_ratio, a, b))
+        if not shares:
+            return ""
+        median = float(np.median([v for v, _, _ in shares]))
+        if median <= self.limits.max_violation_ratio:
+            return ""
+        worst, a, b = max(shares)
+        name = [s.station or str(k) for k, s in enumerate(self.scans)]
+        return (f"joining its groups would put walls into water other scans saw: a median {100 * median:.0f} % "
+                f"of wall points in the other scan's free space over {len(shares)} pairs "
+                f"(worst {name[a]} – {name[b]}, {100 * worst:.0f} %)")
+
+
+def several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int, p: SiteGraphParams) -> bool:
+    """Whether each of two groups has at least two scans that could be matched with the other group (at
+    the depth level of one of its scans): only then can loop closures come from two stations a side."""
+    a, b = graph.members(ga), graph.members(gb)
+
+    def matchable(here: list[int], there: list[int]) -> int:
+        return sum(any(same_level(scans[k], scans[m], p) for m in there) for k in here)
+
+    return matchable(a, b) > 1 and matchable(b, a) > 1
+
+
+def seen_from_two_stations(graph: Graph, bridges: Sequence[Edge], g: int) -> bool:
+    """Whether the loop closures between group ``g`` and another come from two stations on each side: a
+    scan that fell for a look-alike place drags its whole group with it, whichever stations of the other
+    group it was matched with; a second station on each side is harder to fool."""
+    here = {e.i if graph.group[e.i] == g else e.j for e in bridges}
+    there = {e.j if graph.group[e.i] == g else e.i for e in bridges}
+    return len(here) >= 2 and len(there) >= 2
+
+
+def merge_groups(graph: Graph, i: int, j: int, z: gtsam.Pose2) -> None:
+    """Join the group of ``j`` to the group of ``i`` so that ``X_i^-1 X_j = z``."""
+    gi, gj = graph.group[i], graph.group[j]
+    if gi == gj:
+        return
+    offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+    for k in graph.members(gj):
+        graph.pose[k] = offset.compose(graph.pose[k])
+        graph.group[k] = gi
+
+
+def largest_group(graph: Graph) -> int:
+    """The group with most scans (the one of the lowest scan index on ties)."""
+    sizes: dict[int, int] = {}
+    for g in graph.group:
+        sizes[g] = sizes.get(g, 0) + 1
+    return max(sizes, key=lambda g: (sizes[g], -min(graph.members(g))))
+
+
+def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[MatchResult], labels: Sequence[str]) -> str:
+    """Why scan ``k`` is not placed, naming stations: its matches with the placed part of the site and
+    what became of each (the first three)."""
+    if reference >= 0 and graph.group[k] == graph.group[reference]:
+        return ("its only consistent matches were dropped by the least-squares fit's χ² gate; "
+                f"no chain of matches joins it to the reference station {labels[reference]}")
+    target = f"the reference station {labels[reference]}" if reference >= 0 else "any other station"
+    notes = []
+    for m in matches:
+        if k not in (m.i, m.j) or not (0 <= m.i < len(labels) and 0 <= m.j < len(labels)):
+            continue
+        pair = f"{labels[m.i]} → {labels[m.j]}"
+        if m.converged:
+            why = graph.rejected.get((m.i, m.j), "joins it only to stations that are themselves unplaced")
+        else:
+            why = m.reason or "not converged"
+        notes.append(f"{pair}: {why}")
+    detail = "; ".join(notes[:3]) + (f"; and {len(notes) - 3} more" if len(notes) > 3 else "")
+    return f"no consistent chain of matches to {target}" + (f" ({detail})" if detail else " (no pair was matched)")
