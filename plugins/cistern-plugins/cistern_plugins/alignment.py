@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 
 from pydantic import Field
 
+from cistern_archive.core.scan import wrap_angle
 from cistern_archive.pipeline.contracts import StageParams
 from cistern_archive.core.scan import RangeScan
 
@@ -54,10 +55,6 @@ def compose(delta: np.ndarray, pose: np.ndarray) -> np.ndarray:
     c, s = math.cos(delta[2]), math.sin(delta[2])
     t = np.array([c * pose[0] - s * pose[1], s * pose[0] + c * pose[1]]) + delta[:2]
     return np.array([t[0], t[1], pose[2] + delta[2]])
-
-
-def wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 def kabsch_2d(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -274,7 +271,7 @@ class FreeSpace:
             return np.zeros(len(points), dtype=bool)
         a = np.arctan2(points[:, 1], points[:, 0])
         half = np.arctan2(0.5 * SHADOW_WIDTH_M, np.maximum(r[near], 1e-3))
-        diff = np.abs(wrap_array(a[:, None] - a[near][None, :]))
+        diff = np.abs(wrap_angle(a[:, None] - a[near][None, :]))
         return ((diff <= half[None, :]) & (r[:, None] > r[near][None, :] + 0.05)).any(axis=1)
 
     def visible(self, points: np.ndarray, tolerance_m: float) -> np.ndarray:
@@ -304,8 +301,8 @@ class FreeSpace:
         a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         k = np.searchsorted(self.angles, a) % len(self.angles)
         km = (k - 1) % len(self.angles)
-        dk = np.abs(wrap_array(self.angles[k] - a))
-        dkm = np.abs(wrap_array(self.angles[km] - a))
+        dk = np.abs(wrap_angle(self.angles[k] - a))
+        dkm = np.abs(wrap_angle(self.angles[km] - a))
         nearest = np.where(dk <= dkm, k, km)
         gap = np.minimum(dk, dkm)
         r_echo = self.ranges[nearest]
@@ -330,10 +327,6 @@ def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) 
     window = np.where(idx < hi[:, None], values[idx], np.inf)
     out = window.min(axis=1)
     return np.where(np.isfinite(out), out, np.nan)
-
-
-def wrap_array(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def inverse(pose: np.ndarray) -> np.ndarray:

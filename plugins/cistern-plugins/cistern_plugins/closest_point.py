@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cistern_archive.core.scan import wrap_angle
 from cistern_plugins.alignment import (
     ReferenceModel,
     compose,
@@ -19,7 +20,6 @@ from cistern_plugins.alignment import (
     kabsch_2d,
     point_to_line_step,
     transform,
-    wrap,
 )
 
 
@@ -56,7 +56,7 @@ def run_icp(model: ReferenceModel, src: np.ndarray, pose0: np.ndarray, *, varian
         else:
             delta = point_to_line_step(moved[keep], model.points[idx[keep]], model.normals[idx[keep]])
         pose = compose(delta, pose)
-        pose[2] = wrap(pose[2])
+        pose[2] = wrap_angle(pose[2])
         if math.hypot(delta[0], delta[1]) < tolerance_m and abs(delta[2]) < tolerance_m / 10:
             return ICPOutcome(pose, it, True)
         recent = (recent + [pose.copy()])[-6:]

@@ -23,6 +23,7 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
+from cistern_archive.core.scan import wrap_angle
 from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams
 from cistern_archive.core.scan import RangeScan
 
@@ -80,10 +81,6 @@ def match_covariance(m: MatchResult, noise: GraphNoise) -> np.ndarray:
     return np.diag([noise.sigma_xy_m**2, noise.sigma_xy_m**2, math.radians(noise.sigma_yaw_deg) ** 2])
 
 
-def wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
 def spanning_tree(n: int, edges: Sequence[Edge], reference: int) -> dict[int, gtsam.Pose2]:
     """Initial poses by composing edges breadth-first from the reference."""
     adj: dict[int, list[tuple[int, gtsam.Pose2]]] = {k: [] for k in range(n)}
@@ -136,7 +133,7 @@ def solve(n: int, edges: Sequence[Edge], reference: int, noise: GraphNoise,
 def chi2(e: Edge, values: gtsam.Values) -> float:
     """Squared Mahalanobis distance of an edge from a solution (without the robust loss)."""
     rel = values.atPose2(e.i).between(values.atPose2(e.j))
-    err = np.array([rel.x() - e.z[0], rel.y() - e.z[1], wrap(rel.theta() - e.z[2])])
+    err = np.array([rel.x() - e.z[0], rel.y() - e.z[1], wrap_angle(rel.theta() - e.z[2])])
     return float(err @ np.linalg.solve(e.covariance, err))
 
 

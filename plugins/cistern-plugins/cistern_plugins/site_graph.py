@@ -74,10 +74,11 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
+from cistern_archive.core.scan import wrap_angle
 from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, MatchResult, Poses, StageParams,
                                                 VerticalTie)
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated, wrap
+from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated
 from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.site_groups import (
     Graph,
@@ -283,7 +284,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         else:
             graph.rejected[(e.i, e.j)] = (f"inconsistent with the other matches of the site: "
                                           f"{math.hypot(residual.x(), residual.y()):.2f} m and "
-                                          f"{math.degrees(abs(wrap(residual.theta()))):.1f}° off")
+                                          f"{math.degrees(abs(wrap_angle(residual.theta()))):.1f}° off")
     return graph
 
 

@@ -13,9 +13,9 @@ import gtsam
 import numpy as np
 
 from cistern_archive.core.matches import MatchResult
-from cistern_archive.core.scan import RangeScan
+from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
-from cistern_plugins.factor_graph import Edge, wrap
+from cistern_plugins.factor_graph import Edge
 
 if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
@@ -86,7 +86,7 @@ def close_enough(residual: gtsam.Pose2, p: SiteGraphParams, span: gtsam.Pose2) -
     span of the cycle is allowed in translation."""
     lever = math.hypot(span.x(), span.y()) * math.sin(math.radians(p.consistency_deg))
     return (math.hypot(residual.x(), residual.y()) <= p.consistency_m + lever
-            and abs(wrap(residual.theta())) <= math.radians(p.consistency_deg))
+            and abs(wrap_angle(residual.theta())) <= math.radians(p.consistency_deg))
 
 
 def frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
