@@ -28,6 +28,8 @@ from cistern_archive.report.canvas import LINK_BAD, LINK_OK, FigureFile, new_fig
 from cistern_archive.report.files import save_figure
 
 GRID_CMAP = "gray_r"
+MANY_STATIONS = 50
+"""Above this many placed stations the map draws them as small dots."""
 DIMENSION_COLOURS = ("#e66101", "#5e3c99", "#1a9641", "#d7191c", "#2b83ba", "#a6611a")
 
 
@@ -99,7 +101,9 @@ def map_figure(
     if poses is not None and placed:
         xy = poses.xy_m[placed]
         ref = poses.reference
-        ax.scatter(xy[:, 0], xy[:, 1], s=60, c="#2166ac", edgecolors="white", linewidths=1.0, zorder=3)
+        dense = len(placed) > MANY_STATIONS  # a survey's revolutions: small dots that leave the walls visible
+        ax.scatter(xy[:, 0], xy[:, 1], s=10 if dense else 60, c="#2166ac", edgecolors="white",
+                   linewidths=0.3 if dense else 1.0, zorder=3)
         if 0 <= ref < len(poses.placed) and poses.placed[ref]:
             ax.scatter([poses.xy_m[ref, 0]], [poses.xy_m[ref, 1]], s=140, marker="*", c="#ffd92f",
                        edgecolors="black", linewidths=0.8, zorder=4)
