@@ -44,8 +44,7 @@ from cistern_archive.navigation.pipeline import SurveyConfig, data_root_default,
 from cistern_archive.navigation.survey import load_marina_survey  # noqa: E402
 from cistern_archive.sonar.readers.pcd import read_points  # noqa: E402
 
-PUBLISHED = {"dead reckoning": (17.46, 11.47, 45.42), "MSISpIC": (3.99, 2.11, 8.49),
-             "EKF SLAM, line features": (1.91, 1.32, 5.08), "pose-based scan-matching SLAM": (1.90, 1.09, 4.93)}
+from cistern_archive.navigation.records import PUBLISHED_TABLE2 as PUBLISHED  # noqa: E402
 
 
 def _rows(survey, run) -> dict[str, dict]:

@@ -31,6 +31,10 @@ MAX_ALIASES = 100
 MAX_NODES = 100_000
 
 
+SURVEY_INPUTS = "survey/"
+"""Prefix of the input names of a survey record's files (they are archived and exported under it)."""
+
+
 @dataclass(frozen=True)
 class LoadedRecord:
     """A validated record and where it came from."""
@@ -43,6 +47,19 @@ class LoadedRecord:
     def resolve(self, relative: str) -> Path:
         """Absolute path of a file the record references (already checked to stay under the root)."""
         return (self.root / relative).resolve()
+
+    def survey_root(self) -> Path:
+        """The survey's data folder (absolute, or relative to the catalog root; it may lie outside)."""
+        if self.record.survey is None:
+            raise ValueError(f"{self.path}: the record has no survey")
+        return (self.root / Path(self.record.survey.data).expanduser()).resolve()
+
+    def input_path(self, name: str) -> Path:
+        """The file an input name stands for: ``survey/<path inside the survey's data folder>`` for a
+        survey record, else a path relative to the catalog root (:meth:`resolve`)."""
+        if self.record.survey is not None and name.startswith(SURVEY_INPUTS):
+            return self.survey_root() / name[len(SURVEY_INPUTS):]
+        return self.resolve(name)
 
     def line_of(self, *loc: Any) -> int:
         return _nearest_line(self.lines, tuple(loc))

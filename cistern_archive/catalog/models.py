@@ -180,6 +180,58 @@ class PipelineSpec(Strict):
     comparator: StageChoice | None = None
 
 
+class SurveySettings(Strict):
+    """How a moving survey is processed (:mod:`cistern_archive.navigation.pipeline`; lengths in metres,
+    times in seconds). The matcher and the localizer are the record's ``pipeline`` stages."""
+
+    heading: Literal["mti", "dvl"] = Field("mti", description="compass the dead reckoning turns by")
+    calibration_window_s: float = Field(300.0, gt=0, description="DGPS used to calibrate, from its start")
+    clock_offsets_s: list[float] = Field(default_factory=lambda: [-1.0, -0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0],
+                                         min_length=1, description="sonar clock offsets tried")
+    clock_stride: int = Field(2, ge=1, description="every n-th key frame scores the clock offsets")
+    min_range_m: float = Field(1.0, ge=0)
+    echo_position: Literal["leading", "centre", "bins"] = "leading"
+    submap_neighbours: int = Field(2, ge=0, description="revolutions on either side merged into a key frame")
+    consecutive_radius_m: float = Field(1.5, gt=0, description="search radius around the odometry's guess")
+    max_keyframes: int | None = Field(None, ge=2, description="only the first N usable revolutions")
+
+
+class PublishedResult(Strict):
+    """One published result on the same data: a method's position error mean / SD / max (m)."""
+
+    method: str = Field(min_length=1)
+    mean_m: float = Field(ge=0)
+    sd_m: float = Field(ge=0)
+    max_m: float = Field(ge=0)
+
+
+class PublishedComparison(Strict):
+    """A published table the survey's errors are shown beside, and where it was published."""
+
+    source: str = Field(min_length=1, description="the citation (authors, venue, year, table)")
+    rows: list[PublishedResult] = Field(min_length=1)
+
+
+class Survey(Strict):
+    """A moving-vehicle survey: a dataset folder of navigation logs and sonar revolutions.
+
+    ``data`` is the folder, absolute or relative to the catalog root; unlike scan files it may lie
+    outside the catalog (a shared recording is not copied into it).
+    """
+
+    kind: Literal["marina"] = Field(description="the dataset's layout (marina: the Girona marina logs)")
+    data: str
+    settings: SurveySettings = Field(default_factory=SurveySettings)
+    published: PublishedComparison | None = None
+
+    @field_validator("data")
+    @classmethod
+    def _data(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("data folder is empty")
+        return value
+
+
 class TruthPose(Strict):
     station: str
     x_m: float
@@ -198,7 +250,8 @@ class SiteRecord(Strict):
     location: Location = Field(default_factory=Location)
     sonar: SonarSettings = Field(default_factory=SonarSettings)
     segmentation: Segmentation = Field(default_factory=Segmentation)
-    scans: list[ScanRef] = Field(min_length=1)
+    scans: list[ScanRef] = Field(default_factory=list, description="stationary scans (or a survey)")
+    survey: Survey | None = Field(default=None, description="a moving-vehicle survey (or scans)")
     references: list[ReferenceDimension] = Field(default_factory=list)
     pipeline: PipelineSpec = Field(default_factory=PipelineSpec)
     seed: int = Field(default=0, ge=0)
@@ -217,6 +270,9 @@ class SiteRecord(Strict):
 
     @model_validator(mode="after")
     def _unique_stations(self) -> "SiteRecord":
+        if bool(self.scans) == (self.survey is not None):
+            raise ValueError("a site record needs either scans (stationary stations) or a survey (a moving "
+                             "vehicle), not " + ("both" if self.scans else "neither"))
         seen: set[str] = set()
         for scan in self.scans:
             if scan.station in seen:

@@ -27,4 +27,5 @@ COMMAND_MODULES = (
     "export",
     "emulate",
     "acquire",
+    "survey",
 )

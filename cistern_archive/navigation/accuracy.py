@@ -10,31 +10,11 @@ trajectory error of SLAM evaluations.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
+from cistern_archive.core.tracks import ErrorSummary
 from cistern_archive.evaluation import align_rigid_2d
-
-
-@dataclass(frozen=True)
-class ErrorStats:
-    """Mean, standard deviation and maximum of position errors (m), and how many fixes."""
-
-    mean_m: float
-    sd_m: float
-    max_m: float
-    fixes: int
-
-    @classmethod
-    def of(cls, errors: np.ndarray) -> "ErrorStats":
-        errors = np.asarray(errors, dtype=float)
-        if errors.size == 0:
-            raise ValueError("no DGPS fixes to evaluate")
-        return cls(float(errors.mean()), float(errors.std()), float(errors.max()), int(errors.size))
-
-    def as_dict(self) -> dict[str, float]:
-        return {"mean_m": round(self.mean_m, 3), "sd_m": round(self.sd_m, 3), "max_m": round(self.max_m, 3)}
 
 
 def start_aligned_errors(estimate_xy: np.ndarray, fixes_xy: np.ndarray) -> np.ndarray:
@@ -62,11 +42,11 @@ def evaluate_track(position_at: Callable[[np.ndarray], np.ndarray], fix_time: np
     -------
     dict
         ``time`` and ``start_aligned_errors`` / ``rigid_errors`` arrays, ``start_aligned`` and ``rigid``
-        :class:`ErrorStats`.
+        :class:`ErrorSummary`.
     """
     mask = fixes_within(fix_time, start, end)
     times, truth = fix_time[mask], fixes_xy[mask]
     estimate = np.asarray(position_at(times), dtype=float)
     aligned, rigid = start_aligned_errors(estimate, truth), rigid_errors(estimate, truth)
     return {"time": times, "start_aligned_errors": aligned, "rigid_errors": rigid,
-            "start_aligned": ErrorStats.of(aligned), "rigid": ErrorStats.of(rigid)}
+            "start_aligned": ErrorSummary.of(aligned), "rigid": ErrorSummary.of(rigid)}

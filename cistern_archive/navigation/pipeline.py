@@ -18,10 +18,11 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from cistern_archive.catalog.models import SurveySettings
 
 from cistern_archive.navigation.calibration import Calibration, fit_start_calibration
 from cistern_archive.navigation.conventions import Convention, Revolution, best_of
@@ -30,33 +31,23 @@ from cistern_archive.navigation.motion import compensated_range_scan
 from cistern_archive.navigation.survey import MarinaSurvey
 from cistern_archive.navigation.track import Track
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult, Poses
-from cistern_archive.pipeline.registry import default_registry
+from cistern_archive.pipeline.registry import Registry, default_registry
 from cistern_archive.pipeline.runner import localize, match_pair, match_rounds, resolve_stage
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.readers.pcd import read_points
 from cistern_archive.core.scan import RangeScan
 
 
-class SurveyConfig(BaseModel):
-    """Settings of :func:`run_survey` (lengths in metres, times in seconds)."""
+class SurveyConfig(SurveySettings):
+    """Settings of :func:`run_survey`: a site record's survey settings (:class:`SurveySettings`) with the
+    matcher and the localizer (a record's ``pipeline`` stages) and the seed."""
 
-    model_config = ConfigDict(extra="forbid")
-
-    heading: Literal["mti", "dvl"] = "mti"
-    calibration_window_s: float = Field(300.0, gt=0)
-    clock_offsets_s: list[float] = Field(default_factory=lambda: [-1.0, -0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0])
-    clock_stride: int = Field(2, ge=1)
-    min_range_m: float = Field(1.0, ge=0)
-    echo_position: Literal["leading", "centre", "bins"] = "leading"
-    submap_neighbours: int = Field(2, ge=0)
     matcher: str = "guided-correlative"
     matcher_params: dict = Field(default_factory=lambda: {"sigma_m": 0.3, "coarse_m": 0.2, "fine_m": 0.1,
                                                           "ambiguity_distance_m": 2.0, "yaw_window_deg": 2.0})
-    consecutive_radius_m: float = Field(1.5, gt=0)
     localizer: str = "nav-graph"
     localizer_params: dict = Field(default_factory=lambda: {"consecutive": False, "loop_min_gap": 5, "loop_per_scan": 2,
                                                             "compass_sigma_deg": 8.0})
-    max_keyframes: int | None = Field(None, ge=2)
     seed: int = 20040825
 
     @model_validator(mode="after")
@@ -144,8 +135,8 @@ def odometry_guess(a: RangeScan, b: RangeScan, radius_m: float) -> MatchGuess:
     return MatchGuess(float(b.odometry[0] - a.odometry[0]), float(b.odometry[1] - a.odometry[1]), 0.0, radius_m)
 
 
-def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig()) -> SurveyRun:
-    """Run every step of the module docstring."""
+def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig(), registry: Registry | None = None) -> SurveyRun:
+    """Run every step of the module docstring, with the plugins of ``registry`` (the installed ones by default)."""
     timings: dict[str, float] = {}
     start = time.perf_counter()
     raw = survey.dead_reckoning(heading=config.heading)
@@ -162,7 +153,7 @@ def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig()) -> S
     timings["clock"] = time.perf_counter() - start - sum(timings.values())
     scans = compensated_scans(survey, track, frames, offset, config)
     timings["scans"] = time.perf_counter() - start - sum(timings.values())
-    registry = default_registry()
+    registry = registry or default_registry()
     matcher = resolve_stage(registry, "matcher", config.matcher, config.matcher_params)
     localizer = resolve_stage(registry, "localizer", config.localizer, config.localizer_params)
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
-from cistern_archive.catalog.models import SiteRecord
+from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.pipeline.contracts import DimensionRow, Poses
 from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.results import (
@@ -23,6 +23,7 @@ from cistern_archive.pipeline.results import (
     SiteBuild,
     SiteResult,
     finite_or_none,
+    track_summary,
 )
 from cistern_archive.pipeline.status import label_indices, site_status, weakness
 
@@ -35,9 +36,10 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
     result = build.result.model_copy()
     truth = {t.station: t for t in record.truth}
     poses = build.poses
-    labels = [ref.station for ref in record.scans]
+    refs = scan_entries(build)
+    labels = [ref.station for ref in refs]
     scans = []
-    for k, ref in enumerate(record.scans):
+    for k, ref in enumerate(refs):
         raw = build.raw_scans[k] if k < len(build.raw_scans) else None
         placed = bool(poses is not None and poses.placed[k])
         sigma = (None, None)
@@ -76,6 +78,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
     result.status, result.status_reasons = site_status(
         failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
         unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [])
+    result.track = None if build.track is None else track_summary(build.track)
     result.timings_s = dict(timings)
     result.timings_s["total"] = round(sum(timings.values()), 6)
     result.provenance = Provenance(
@@ -87,6 +90,15 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         numpy=np.__version__,
     )
     return result
+
+
+def scan_entries(build: SiteBuild) -> list[ScanRef]:
+    """The record's scans, or for a record that lists none (a survey) one entry per segmented scan,
+    named by its station and the file of :attr:`SiteBuild.scan_files`."""
+    if build.record.scans:
+        return list(build.record.scans)
+    return [ScanRef(file=file, station=scan.station, depth_m=scan.depth_m)
+            for scan, file in zip(build.range_scans, build.scan_files)]
 
 
 def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:

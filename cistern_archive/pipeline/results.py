@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from cistern_archive.pipeline.contracts import DimensionTable, MapResult, MatchResult, Poses
 from cistern_archive.pipeline.status import SiteStatus
 from cistern_archive.core.scan import RangeScan, Scan
+from cistern_archive.core.tracks import TrackComparison
 
 
 def finite_or_none(value: float | None) -> float | None:
@@ -107,6 +108,28 @@ class StageFailure(Model):
     traceback: str = ""
 
 
+class TrackErrors(Model):
+    """Errors of one estimated track at the DGPS fixes (m): start-aligned and after rigid alignment."""
+
+    name: str
+    start_aligned: dict[str, float | int]
+    rigid: dict[str, float | int]
+
+
+class TrackSummary(Model):
+    """A moving survey's tracks against DGPS (:class:`~cistern_archive.core.tracks.TrackComparison`)."""
+
+    fixes: int
+    span_s: float
+    revolutions: int
+    revolutions_available: int
+    clock_offset_s: float
+    calibration_end_s: float | None = None
+    tracks: list[TrackErrors]
+    published_source: str = ""
+    published: list[dict[str, float | str]] = Field(default_factory=list)
+
+
 class SiteResult(Model):
     """Everything a site build produced that fits in JSON."""
 
@@ -124,6 +147,7 @@ class SiteResult(Model):
     provenance: Provenance | None = None
     timings_s: dict[str, float] = Field(default_factory=dict)
     failure: StageFailure | None = None
+    track: TrackSummary | None = Field(default=None, description="a moving survey's tracks against DGPS")
     artifacts: dict[str, str] = Field(default_factory=dict, description="name -> path relative to the site folder")
 
     @property
@@ -147,3 +171,19 @@ class SiteBuild:
     map_result: MapResult | None = None
     table: DimensionTable | None = None
     mesh: Any = None  # cistern_archive.grid.surface.SurfaceMesh: the wall surface of the mesh step
+    scan_files: list[str] = field(default_factory=list)
+    """The input each scan was read from, when the record does not list its scans (a survey's revolutions)."""
+    track: TrackComparison | None = None
+    """A moving survey's tracks against ground truth."""
+
+
+def track_summary(track: TrackComparison) -> TrackSummary:
+    """The JSON summary of a track comparison (``result.json``)."""
+    return TrackSummary(
+        fixes=len(track.time_s), span_s=round(track.span_s, 3), revolutions=track.revolutions,
+        revolutions_available=track.revolutions_available, clock_offset_s=track.clock_offset_s,
+        calibration_end_s=track.calibration_end_s,
+        tracks=[TrackErrors(name=t.name, start_aligned=t.start_aligned.as_dict(), rigid=t.rigid.as_dict())
+                for t in track.tracks],
+        published_source=track.published_source,
+        published=[{"method": r.method, "mean_m": r.mean_m, "sd_m": r.sd_m, "max_m": r.max_m} for r in track.published])

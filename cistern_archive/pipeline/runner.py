@@ -197,7 +197,8 @@ class SiteRun:
         return f"pair {i}->{j} ({stations[i]} -> {stations[j]})"
 
 
-def _run(stage: str, input_label: str, func: Callable[[], T]) -> T:
+def run_stage(stage: str, input_label: str, func: Callable[[], T]) -> T:
+    """``func()``, with any failure turned into a :class:`StageError` naming the stage and its input."""
     try:
         return func()
     except StageError:
@@ -208,21 +209,21 @@ def _run(stage: str, input_label: str, func: Callable[[], T]) -> T:
 
 def configure_step(run: SiteRun) -> None:
     """Resolve every stage's plugin and parameters; the build's record names every stage (``record.json``)."""
-    run.stages = _run("configure", str(run.loaded.path), lambda: resolve_stages(run.loaded.record, run.registry))
-    run.build.record = _run("configure", str(run.loaded.path), lambda: run.registry.resolve(run.loaded.record))
+    run.stages = run_stage("configure", str(run.loaded.path), lambda: resolve_stages(run.loaded.record, run.registry))
+    run.build.record = run_stage("configure", str(run.loaded.path), lambda: run.registry.resolve(run.loaded.record))
 
 
 def load_step(run: SiteRun) -> None:
     """Read every scan the record references."""
     for ref in run.record.scans:
-        run.build.raw_scans.append(_run("load", ref.file, lambda ref=ref: load_scan(run.loaded, ref)))
+        run.build.raw_scans.append(run_stage("load", ref.file, lambda ref=ref: load_scan(run.loaded, ref)))
 
 
 def segment_step(run: SiteRun) -> None:
     """One range per beam of every scan, with the record's segmentation."""
     for ref, scan in zip(run.record.scans, run.build.raw_scans):
         run.build.range_scans.append(
-            _run("segment", ref.file, lambda s=scan: segment_scan(s, run.record.segmentation)))
+            run_stage("segment", ref.file, lambda s=scan: segment_scan(s, run.record.segmentation)))
 
 
 def match_step(run: SiteRun) -> None:
@@ -230,30 +231,30 @@ def match_step(run: SiteRun) -> None:
     matcher, scans, seed = run.stages["matcher"], run.build.range_scans, run.record.seed
 
     def run_pair(i: int, j: int, guess: MatchGuess | None) -> MatchResult:
-        return _run("match", run.pair_label(i, j), lambda: match_pair(matcher, scans, seed, i, j, guess))
+        return run_stage("match", run.pair_label(i, j), lambda: match_pair(matcher, scans, seed, i, j, guess))
 
     run.build.matches.extend(match_rounds(scans, run.stages["localizer"], run_pair, ties=record_ties(run.record),
-                                          plan=lambda label, func: _run("match", label, func)))
+                                          plan=lambda label, func: run_stage("match", label, func)))
 
 
 def localize_step(run: SiteRun) -> None:
     """Place the scans (:func:`localize`) with the record's vertical ties."""
     build = run.build
-    build.poses = _run("localize", f"{len(build.matches)} matches", lambda: localize(
+    build.poses = run_stage("localize", f"{len(build.matches)} matches", lambda: localize(
         run.stages["localizer"], build.range_scans, build.matches, record_ties(run.record)))
 
 
 def map_step(run: SiteRun) -> None:
     """Fuse the placed scans into evidence grids."""
     build, mapper = run.build, run.stages["mapper"]
-    build.map_result = _run("map", f"{int(build.poses.placed.sum())} placed scans",
+    build.map_result = run_stage("map", f"{int(build.poses.placed.sum())} placed scans",
                             lambda: mapper.instance.build(build.range_scans, build.poses, mapper.params))
 
 
 def compare_step(run: SiteRun) -> None:
     """Measure the record's reference dimensions in the map."""
     build, comparator, record = run.build, run.stages["comparator"], run.record
-    build.table = _run("compare", f"{len(record.references)} reference dimensions",
+    build.table = run_stage("compare", f"{len(record.references)} reference dimensions",
                        lambda: comparator.instance.compare(build.map_result, build.poses, record.references,
                                                            record.station_index(), comparator.params))
 
@@ -264,7 +265,7 @@ def mesh_step(run: SiteRun) -> None:
     from cistern_archive.grid.surface import wall_surface  # scikit-image: deferred until a site is meshed
 
     build = run.build
-    build.mesh = _run("mesh", f"{len(build.map_result.grids)} depth slices", lambda: wall_surface(
+    build.mesh = run_stage("mesh", f"{len(build.map_result.grids)} depth slices", lambda: wall_surface(
         build.map_result, build.poses, [s.depth_m for s in build.range_scans]))
 
 

@@ -12,6 +12,7 @@ from cistern_archive.catalog.loader import LoadedRecord, format_loc, load_record
 from cistern_archive.core.errors import CatalogError, PluginError
 from cistern_archive.pipeline.contracts import STAGES
 from cistern_archive.pipeline.registry import Registry, default_registry
+from cistern_archive.sonar import marina
 
 
 @dataclass
@@ -42,7 +43,20 @@ def check_files(loaded: LoadedRecord) -> list[str]:
             problems.append(f"{where}: file {relative!r} not found under {loaded.root}")
         elif not resolved.is_file():
             problems.append(f"{where}: {relative!r} is not a file")
-    return problems
+    return problems + check_survey(loaded)
+
+
+SURVEY_CHECKS = {"marina": marina.dataset_problems}
+"""Survey kind → the check of its data folder (a list of problems naming the file)."""
+
+
+def check_survey(loaded: LoadedRecord) -> list[str]:
+    """Problems with a survey record's data folder and the files its kind reads (none without a survey)."""
+    survey = loaded.record.survey
+    if survey is None:
+        return []
+    where = f"{loaded.path}:{loaded.line_of('survey', 'data')}: survey.data"
+    return [f"{where}: {problem}" for problem in SURVEY_CHECKS[survey.kind](loaded.survey_root())]
 
 
 def check_plugins(loaded: LoadedRecord, registry: Registry, *, load_errors: bool = True) -> list[str]:

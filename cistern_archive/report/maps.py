@@ -28,6 +28,8 @@ from cistern_archive.report.canvas import LINK_BAD, LINK_OK, FigureFile, new_fig
 from cistern_archive.report.files import save_figure
 
 GRID_CMAP = "gray_r"
+MANY_STATIONS = 50
+"""Above this many placed stations the map draws them as small dots."""
 DIMENSION_COLOURS = ("#e66101", "#5e3c99", "#1a9641", "#d7191c", "#2b83ba", "#a6611a")
 
 
@@ -67,8 +69,10 @@ def map_figure(
     labels: Sequence[str],
     *,
     dpi: int,
+    label_every: int = 1,
 ) -> FigureFile:
-    """The evidence grid with stations and pair links.
+    """The evidence grid with stations and pair links; every ``label_every``-th placed station (and the
+    last) is labelled (a survey's hundreds of revolutions would bury the map under their labels).
 
     Links join placed stations: solid green for converged matches, dashed magenta for the others, the
     width growing with the match weight (relative to the largest weight of the site).
@@ -97,12 +101,15 @@ def map_figure(
     if poses is not None and placed:
         xy = poses.xy_m[placed]
         ref = poses.reference
-        ax.scatter(xy[:, 0], xy[:, 1], s=60, c="#2166ac", edgecolors="white", linewidths=1.0, zorder=3)
+        dense = len(placed) > MANY_STATIONS  # a survey's revolutions: small dots that leave the walls visible
+        ax.scatter(xy[:, 0], xy[:, 1], s=10 if dense else 60, c="#2166ac", edgecolors="white",
+                   linewidths=0.3 if dense else 1.0, zorder=3)
         if 0 <= ref < len(poses.placed) and poses.placed[ref]:
             ax.scatter([poses.xy_m[ref, 0]], [poses.xy_m[ref, 1]], s=140, marker="*", c="#ffd92f",
                        edgecolors="black", linewidths=0.8, zorder=4)
         x0, x1 = ax.get_xlim() if grid is None else grid.extent_m[:2]
-        for xy_k, text in stacked_labels(poses.xy_m[placed], [labels[k] for k in placed],
+        named = [k for q, k in enumerate(placed) if q % label_every == 0 or q == len(placed) - 1]
+        for xy_k, text in stacked_labels(poses.xy_m[named], [labels[k] for k in named],
                                          tolerance_m=0.015 * max(abs(x1 - x0), 1.0)):
             ax.annotate(text, xy_k, xytext=(6, 6), textcoords="offset points", fontsize=9,
                         color="#08306b", fontweight="bold", zorder=5)

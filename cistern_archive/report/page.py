@@ -17,11 +17,13 @@ from cistern_archive.report.canvas import FigureFile
 from cistern_archive.report.files import build_time_from_env, format_time, unique_slugs
 from cistern_archive.report.html import STATUS_TEXT, number, probe_count, signed, with_interval
 from cistern_archive.report.model_section import ModelOutcome
+from cistern_archive.report.track import track_context
 
 SECTION_TITLES = {
     "failure": "Build failed",
     "summary": "Summary",
     "map": "Map",
+    "track": "Track",
     "model": "3D model",
     "dimensions": "Dimensions",
     "pairs": "Pair matches",
@@ -31,7 +33,7 @@ SECTION_TITLES = {
     "provenance": "Parameters and provenance",
     "downloads": "Downloads",
 }
-TOC = ("failure", "summary", "map", "model", "dimensions", "pairs", "scans", "provenance", "downloads")
+TOC = ("failure", "summary", "map", "track", "model", "dimensions", "pairs", "scans", "provenance", "downloads")
 
 
 
@@ -149,11 +151,11 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
     """Everything ``site.html.j2`` shows, as plain strings, lists and dicts."""
     result = build.result
     ids = dict(zip(SECTION_TITLES, unique_slugs(list(SECTION_TITLES.values()))))
-    sections = [{"id": ids[key], "title": SECTION_TITLES[key]} for key in TOC
-                if key != "failure" or result.failure is not None]
+    shown = {"failure": result.failure is not None, "track": build.track is not None}
+    sections = [{"id": ids[key], "title": SECTION_TITLES[key]} for key in TOC if shown.get(key, True)]
     single = [(key, drawn[key]) for key in ("map", "slices", "probes") if key in drawn]
-    all_figures = single + [("pair", f) for f in drawn["pairs"]] + [("fan", f) for f in drawn["fans"]] + \
-        [("view", f) for f in model.views]
+    all_figures = single + [("track", f) for f in drawn.get("track", [])] + [("pair", f) for f in drawn["pairs"]] + \
+        [("fan", f) for f in drawn["fans"]] + [("view", f) for f in model.views]
     anchors = unique_slugs([f"figure {f.title}" for _, f in all_figures])
     views = {id(f): _figure_view(f, a, site_dir) for (_, f), a in zip(all_figures, anchors)}
     figures = {key: None for key in ("map", "slices", "probes")}
@@ -207,6 +209,8 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "viewer_scripts": viewer.script_sources() if "viewer-model" in model.files else [],
         "model_note": model.note,
         "model_missing": model.missing,
+        "track": None if build.track is None else track_context(build.track),
+        "track_figures": [views[id(f)] for f in drawn.get("track", [])],
         "dimensions": _dimension_rows(result),
         "pairs": pairs,
         "pair_figures": [views[id(f)] for f in drawn["pairs"]],

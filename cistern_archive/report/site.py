@@ -22,7 +22,7 @@ from cistern_archive.pipeline import export
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
 from cistern_archive.pipeline.runner import RESULT_FILE
 from cistern_archive.report import figures as fig
-from cistern_archive.report import geotiff, maps, pdf, plan
+from cistern_archive.report import geotiff, maps, pdf, plan, track
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.downloads import download_rows
 from cistern_archive.report.files import build_time_from_env
@@ -58,6 +58,10 @@ def write_grid_files(build: SiteBuild, site_dir: Path) -> dict[str, str]:
 
 
 # ------------------------------------------------------------------------------------------ figures
+MAX_MAP_LABELS = 20
+"""A map labels at most this many stations (a survey's hundreds of revolutions: every n-th one)."""
+
+
 def _scan_depth(build: SiteBuild) -> float | None:
     depths = [s.depth_m for s in build.range_scans] or [s.depth_m for s in build.result.scans]
     return float(np.median(depths)) if depths else None
@@ -80,10 +84,13 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
     grids = build.map_result.grids if build.map_result is not None else ()
     grid = maps.choose_slice(grids, _scan_depth(build)) if grids else None
     if grid is not None or build.poses is not None:
-        out["map"] = maps.map_figure(site_dir / "map.png", grid, build.poses, build.matches, labels, dpi=config.dpi)
+        out["map"] = maps.map_figure(site_dir / "map.png", grid, build.poses, build.matches, labels,
+                                     dpi=config.dpi, label_every=max(1, -(-len(labels) // MAX_MAP_LABELS)))
     if grid is not None:
         maps.thumbnail(site_dir / "thumbnail.png", grid, build.poses, width_px=config.thumbnail_px)
         out["thumbnail"] = "thumbnail.png"
+    if build.track is not None:
+        out["track"] = track.track_figures(site_dir, build.track, dpi=config.dpi)
     if len(grids) > 1:
         out["slices"] = maps.slices_figure(site_dir / "slices.png", grids, dpi=config.dpi)
     if grids and build.table is not None and any(r.probe_lines for r in build.table.rows):
@@ -140,7 +147,7 @@ def render_site(build: SiteBuild, site_dir: Path, *, config: ReportConfig | None
             artifacts[key] = drawn[key].file
     if "thumbnail" in drawn:
         artifacts["thumbnail"] = drawn["thumbnail"]
-    for f in drawn["pairs"] + drawn["fans"]:
+    for f in drawn.get("track", []) + drawn["pairs"] + drawn["fans"]:
         artifacts[Path(f.file).stem] = f.file
     model = build_model(build, site_dir, config)
     artifacts.update(model.files)

@@ -129,7 +129,7 @@ def material_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
 
 def input_digests(loaded: LoadedRecord) -> dict[str, str]:
     """``{path relative to the catalog root: sha256}`` of the record's input files, read in place."""
-    return {relative: file_sha256(loaded.resolve(relative))[0] for _, relative in site_inputs(loaded)}
+    return {relative: file_sha256(loaded.input_path(relative))[0] for _, relative in site_inputs(loaded)}
 
 
 def decide(loaded: LoadedRecord, site_dir: Path, registry: Registry, report_config: dict[str, Any] | None,

@@ -10,7 +10,7 @@ from typing import Any
 
 from cistern_archive.archive.digest import file_sha256
 from cistern_archive.archive.repository import Archive
-from cistern_archive.catalog.loader import LoadedRecord
+from cistern_archive.catalog.loader import SURVEY_INPUTS, LoadedRecord
 from cistern_archive.core.errors import CatalogError, CisternError, EnvironmentProblem, ReaderError
 from cistern_archive.pipeline.registry import Registry
 from cistern_archive.service.buildkey import BuildKey, build_key
@@ -18,6 +18,7 @@ from cistern_archive.service.outcomes import log_outcome, record_outcome
 from cistern_archive.service.runlog import RunLog
 from cistern_archive.service.summary import SiteOutcome
 from cistern_archive.service.worker import BUILD_INFO
+from cistern_archive.sonar import marina
 from cistern_archive.sonar.readers import check_file
 
 
@@ -39,6 +40,8 @@ def site_inputs(loaded: LoadedRecord) -> list[tuple[str, str]]:
     items = [("scan", scan.file) for scan in record.scans]
     if record.simulation:
         items.append(("simulation", record.simulation))
+    if record.survey is not None:
+        items += [("survey", SURVEY_INPUTS + name) for name in marina.dataset_files(loaded.survey_root())]
     return sorted(set(items), key=lambda item: item[1])
 
 
@@ -67,9 +70,9 @@ def plan_site(loaded: LoadedRecord, archive: Archive, registry: Registry, run_id
     digests = {}
     for role, relative in site_inputs(loaded):
         if relative in refused:
-            digests[relative] = file_sha256(loaded.resolve(relative))[0]
+            digests[relative] = file_sha256(loaded.input_path(relative))[0]
             continue
-        items.append(archive.ingest(loaded.resolve(relative), site_id=site_id, role=role, relative_path=relative,
+        items.append(archive.ingest(loaded.input_path(relative), site_id=site_id, role=role, relative_path=relative,
                                     run_id=run_id))
         digests[relative] = items[-1].sha256
     archive.index.touch_site(site_id, loaded.record.name, record_rel)

@@ -99,7 +99,7 @@ def check_inputs(task: "SiteTask", loaded) -> None:
     if record is not None and loaded.record.model_dump(mode="json") != record:
         raise InputChanged(f"{task.record_path}: the record changed after it was archived; rebuild again")
     for relative, expected in (task.key_material.get("inputs") or {}).items():
-        path = Path(task.catalog_root) / relative
+        path = loaded.input_path(relative)
         actual = file_sha256(path)[0]
         if actual != expected:
             raise InputChanged(f"{path}: sha256 is {actual}, but {expected} was archived for this build; "
@@ -194,7 +194,12 @@ def run_site(task: SiteTask) -> SiteOutcome:
         staged = staging_dir(out, task.site_id)
         loaded = load_record(Path(task.record_path), Path(task.catalog_root))
         check_inputs(task, loaded)
-        build = build_site(loaded, on_stage=marker)
+        if loaded.record.survey is not None:
+            from cistern_archive.navigation.site import build_survey_site
+
+            build = build_survey_site(loaded, on_stage=marker)
+        else:
+            build = build_site(loaded, on_stage=marker)
         timings.update(build.result.timings_s)
         marker("report")
         tick = time.perf_counter()

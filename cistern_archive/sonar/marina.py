@@ -231,3 +231,52 @@ def mean_heading_deg(table: NavTable, start: float, end: float, column: str = "y
     values = part[column] if len(part) else np.array([table[column][np.argmin(np.abs(table.time - start))]])
     rad = np.radians(values)
     return math.degrees(math.atan2(np.sin(rad).mean(), np.cos(rad).mean())) % 360.0
+
+
+DATASET_LOGS = ("*_DVL.log", "*_MTi.log", "dgps_local_EN_m.csv", "*_IS_timestamps.log")
+"""The logs a marina survey reads, as glob patterns inside its folder (the first match of each is read)."""
+KEYFRAME_TABLE = "derived_tim_pcd/keyFrameTimeStamps.csv"
+KEYFRAME_CLOUD = "derived_tim_pcd/pclKeyFrame{frame}.pcd"
+
+
+def dataset_problems(root: str | os.PathLike) -> list[str]:
+    """What is missing or unreadable in a marina dataset folder: each log of :data:`DATASET_LOGS`, the
+    key-frame table (parsed) and the point cloud of every key frame it lists; ``[]`` when complete."""
+    root = Path(root)
+    if not root.is_dir():
+        return [f"{root}: the survey's data folder does not exist (or is not a folder)"]
+    problems = [f"{root}: no file matching {pattern!r}" for pattern in DATASET_LOGS
+                if not any(p.is_file() for p in root.glob(pattern))]
+    table = root / KEYFRAME_TABLE
+    if not table.is_file():
+        return problems + [f"{table}: the key-frame time table is missing"]
+    try:
+        frames = load_keyframe_times(table)
+    except ReaderError as exc:
+        return problems + [str(exc)]
+    if not frames:
+        problems.append(f"{table}: lists no key frame")
+    missing = [k for k in sorted(frames) if not (root / KEYFRAME_CLOUD.format(frame=k)).is_file()]
+    if missing:
+        shown = ", ".join(str(k) for k in missing[:5]) + (" …" if len(missing) > 5 else "")
+        problems.append(f"{root / 'derived_tim_pcd'}: no point cloud for {len(missing)} key frame(s) of "
+                        f"{KEYFRAME_TABLE} ({shown})")
+    return problems
+
+
+def dataset_files(root: str | os.PathLike) -> list[str]:
+    """Every file a marina survey reads, as POSIX paths relative to ``root``, sorted.
+
+    Raises
+    ------
+    ReaderError
+        The folder is incomplete (:func:`dataset_problems`).
+    """
+    root = Path(root)
+    problems = dataset_problems(root)
+    if problems:
+        raise ReaderError(str(root), "; ".join(problems))
+    files = [sorted(p for p in root.glob(pattern) if p.is_file())[0] for pattern in DATASET_LOGS]
+    files.append(root / KEYFRAME_TABLE)
+    files += [root / KEYFRAME_CLOUD.format(frame=k) for k in load_keyframe_times(root / KEYFRAME_TABLE)]
+    return sorted({p.relative_to(root).as_posix() for p in files})
