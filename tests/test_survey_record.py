@@ -160,3 +160,15 @@ def test_the_survey_command_keeps_an_existing_record_unless_forced(tmp_path, cap
     with pytest.raises(SystemExit) as third:
         main(args[:-1] + ["14", "--force"])
     assert third.value.code == 0 and "max_keyframes: 14" in path.read_text()
+
+
+def test_a_stationary_scan_is_not_acquired_into_a_survey(tmp_path):
+    from cistern_archive.acquisition.session import acquire_scan
+    from cistern_archive.core.errors import CatalogError
+
+    data = skeleton_dataset(tmp_path / "shared" / "marina")
+    record = write_record(tmp_path / "catalog", survey_yaml(str(data)))
+    before = record.read_bytes()
+    with pytest.raises(CatalogError, match="'moving' is a moving survey"):
+        acquire_scan(tmp_path / "catalog", "socket://127.0.0.1:9", "moving", "s1", depth_m=1.0, heading_deg=0.0)
+    assert record.read_bytes() == before and not (tmp_path / "catalog" / "data").exists()

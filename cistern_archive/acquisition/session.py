@@ -264,6 +264,9 @@ def acquire_scan(catalog: str | os.PathLike, port: str, site_id: str, station: s
     """
     root = Path(catalog)
     loaded = find_site(root, site_id)
+    if loaded.record.survey is not None:
+        raise CatalogError([f"{loaded.path}: site {site_id!r} is a moving survey, built from its dataset; "
+                            "stationary scans are added to sites with a scans list"])
     check_new_station(station, loaded)
     existing = {ref.station for ref in loaded.record.scans}
     if station in existing or station + PARTIAL_SUFFIX in existing:
