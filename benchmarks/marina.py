@@ -40,7 +40,10 @@ from cistern_archive.core.errors import CisternError  # noqa: E402
 from cistern_archive.navigation.accuracy import evaluate_track  # noqa: E402
 from cistern_archive.navigation.calibration import fit_start_calibration  # noqa: E402
 from cistern_archive.navigation.conventions import Convention, Revolution, consecutive_overlap  # noqa: E402
+from cistern_archive.catalog.models import Survey  # noqa: E402
 from cistern_archive.navigation.pipeline import SurveyConfig, data_root_default, run_survey  # noqa: E402
+from cistern_archive.navigation.site import track_comparison  # noqa: E402
+from cistern_archive.report.track import error_figure, tracks_figure  # noqa: E402
 from cistern_archive.navigation.survey import load_marina_survey  # noqa: E402
 from cistern_archive.sonar.readers.pcd import read_points  # noqa: E402
 
@@ -97,43 +100,13 @@ def along_track_bias(run) -> tuple[int, float, float] | None:
     return (len(along), float(np.median(along)), float(np.mean(along))) if along else None
 
 
-def _figures(survey, run, rows: dict[str, dict], out: Path) -> list[Path]:
-    """Tracks over DGPS and error over time (PNG, metadata-free)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def _figures(survey, run, config: SurveyConfig, data: Path, out: Path) -> list[Path]:
+    """The report's Track figures (:mod:`cistern_archive.report.track`) of this run: the tracks over DGPS
+    and the error over time, as a site page draws them."""
+    track = track_comparison(survey, run, Survey(kind="marina", data=str(data)), config)
     out.mkdir(parents=True, exist_ok=True)
-    fix_time, fixes = survey.dgps_xy()
-    start, end = run.span_s
-    mask = (fix_time >= start) & (fix_time <= end)
-    times = fix_time[mask]
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.plot(fixes[mask, 0], fixes[mask, 1], "k-", lw=2, label="DGPS")
-    for name, positions in (("dead reckoning, calibrated", run.track.pose_at(times)[:, :2]),
-                            ("pipeline (nav-graph)", run.positions_at(times))):
-        aligned = positions + (fixes[mask][0] - positions[0])
-        ax.plot(aligned[:, 0], aligned[:, 1], lw=1.2, label=f"{name} (start-aligned)")
-    ax.set_aspect("equal")
-    ax.set_xlabel("east (m)")
-    ax.set_ylabel("north (m)")
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title("Girona marina: tracks over DGPS")
-    track_png = out / "marina_tracks.png"
-    fig.savefig(track_png, dpi=110, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    for name, row in rows.items():
-        ax.plot(row["time"] - row["time"][0], row["start_aligned_errors"], lw=1, label=name)
-    ax.set_xlabel("time since the first evaluated fix (s)")
-    ax.set_ylabel("start-aligned error (m)")
-    ax.set_yscale("log")
-    ax.legend(loc="best", fontsize=7)
-    error_png = out / "marina_error.png"
-    fig.savefig(error_png, dpi=110, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return [track_png, error_png]
+    drawn = (tracks_figure(out / "marina_tracks.png", track, dpi=110), error_figure(out / "marina_error.png", track, dpi=110))
+    return [out / figure.file for figure in drawn]
 
 
 CONVENTION_VARIANTS = {
@@ -208,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
           + ", ".join(f"{o:+.2f} s: {s:.3f}" for o, s in run.clock_scores) + f" -> {run.clock_offset_s:+.2f} s")
     print("timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in run.timings_s.items()) + f", total {seconds:.1f} (CPU {cpu_seconds:.1f})")
     if not args.no_figures:
-        for path in _figures(survey, run, rows, args.figures):
+        for path in _figures(survey, run, config, args.data, args.figures):
             print(f"figure: {path}")
     if args.json:
         dr = rows["dead reckoning, DVL compass (as logged)"]

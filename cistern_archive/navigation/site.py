@@ -21,8 +21,6 @@ A failure of a step is recorded like a stage failure of a cistern (``result.fail
 
 from __future__ import annotations
 
-import time
-import traceback
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -35,9 +33,8 @@ from cistern_archive.navigation.pipeline import SurveyConfig, SurveyRun, run_sur
 from cistern_archive.navigation.survey import MarinaSurvey, load_marina_survey
 from cistern_archive.pipeline.assemble import assemble_result
 from cistern_archive.pipeline.registry import Registry, default_registry
-from cistern_archive.pipeline.results import SiteBuild, SiteResult, StageFailure
-from cistern_archive.pipeline.runner import run_stage
-from cistern_archive.pipeline.runner import resolve_stages
+from cistern_archive.pipeline.results import SiteBuild, SiteResult
+from cistern_archive.pipeline.runner import StageTimer, record_failure, resolve_stages, run_stage
 from cistern_archive.sonar.marina import KEYFRAME_CLOUD
 
 T = TypeVar("T")
@@ -71,11 +68,11 @@ def track_comparison(survey: MarinaSurvey, run: SurveyRun, spec: Survey, config:
             lambda t: run.track.pose_at(t)[:, :2],
         f"pipeline ({config.matcher} + {config.localizer})": run.positions_at,
     }
-    tracks, times, truth = [], None, None
+    truth = fixes[(fix_time >= start) & (fix_time <= end)]
+    tracks, times = [], None
     for name, position_at in estimates.items():
         row = evaluate_track(position_at, fix_time, fixes, start=start, end=end)
         times = row["time"]
-        truth = fixes[(fix_time >= start) & (fix_time <= end)]
         tracks.append(EstimatedTrack(name=name, xy_m=position_at(times), start_aligned_errors_m=row["start_aligned_errors"],
                                      rigid_errors_m=row["rigid_errors"]))
     published = spec.published
@@ -87,17 +84,6 @@ def track_comparison(survey: MarinaSurvey, run: SurveyRun, spec: Survey, config:
         calibration_end_s=calibration_start + run.calibration.window_s,
         revolutions=len(run.scans), revolutions_available=len(usable_frames(survey, run.track, run.clock_offset_s)),
         clock_offset_s=float(run.clock_offset_s))
-
-
-def _timed(timings: dict[str, float], on_stage: Callable[[str], None] | None, name: str, input_label: str,
-           func: Callable[[], T]) -> T:
-    if on_stage is not None:
-        on_stage(name)
-    start = time.perf_counter()
-    try:
-        return run_stage(name, input_label, func)
-    finally:
-        timings[name] = round(time.perf_counter() - start, 6)
 
 
 def build_survey_site(loaded: LoadedRecord, *, registry: Registry | None = None,
@@ -113,30 +99,31 @@ def build_survey_site(loaded: LoadedRecord, *, registry: Registry | None = None,
     record = loaded.record
     registry = registry or default_registry()
     build = SiteBuild(result=SiteResult(site_id=record.id, name=record.name, status="ok"), record=record)
-    timings: dict[str, float] = {}
+    timer = StageTimer(on_stage)
     stages: dict = {}
     label = str(loaded.path)
     try:
-        stages = {k: v for k, v in _timed(timings, on_stage, "configure", label,
-                                          lambda: resolve_stages(record, registry)).items() if k in SURVEY_STAGES}
-        build.record = run_stage("configure", label, lambda: registry.resolve(record))
-        config = run_stage("configure", label, lambda: survey_config(build.record))
+        with timer.stage("configure"):
+            stages = {k: v for k, v in run_stage("configure", label, lambda: resolve_stages(record, registry)).items()
+                      if k in SURVEY_STAGES}
+            build.record = run_stage("configure", label, lambda: registry.resolve(record))
+            config = run_stage("configure", label, lambda: survey_config(build.record))
         root = loaded.survey_root()
-        survey = _timed(timings, on_stage, "load", str(root), lambda: load_marina_survey(root))
+        with timer.stage("load"):
+            survey = run_stage("load", str(root), lambda: load_marina_survey(root))
         if on_stage is not None:
-            on_stage("survey")
+            on_stage("survey")  # timed by its own steps, the survey_* entries below
         run = run_stage("survey", f"{len(survey.keyframes)} key frames", lambda: run_survey(survey, config, registry))
-        timings.update({f"survey_{k}": round(v, 6) for k, v in run.timings_s.items()})
+        timer.timings.update({f"survey_{k}": round(v, 6) for k, v in run.timings_s.items()})
         build.range_scans, build.matches, build.poses = list(run.scans), list(run.matches), run.poses
         build.scan_files = [SURVEY_INPUTS + KEYFRAME_CLOUD.format(frame=k) for k in run.frames]
         mapper = stages["mapper"]
-        build.map_result = _timed(timings, on_stage, "map", f"{int(run.poses.placed.sum())} placed key frames",
-                                  lambda: mapper.instance.build(build.range_scans, build.poses, mapper.params))
-        build.track = _timed(timings, on_stage, "track", "DGPS fixes",
-                             lambda: track_comparison(survey, run, record.survey, config))
+        with timer.stage("map"):
+            build.map_result = run_stage("map", f"{int(run.poses.placed.sum())} placed key frames",
+                                         lambda: mapper.instance.build(build.range_scans, build.poses, mapper.params))
+        with timer.stage("track"):
+            build.track = run_stage("track", "DGPS fixes", lambda: track_comparison(survey, run, record.survey, config))
     except StageError as exc:
-        build.result.status = "failed"
-        build.result.failure = StageFailure(stage=exc.stage, input=exc.input, error=exc.message,
-                                            traceback="".join(traceback.format_exception(exc.__cause__ or exc)))
-    build.result = assemble_result(build, loaded, [s.provenance(n) for n, s in stages.items()], timings)
+        record_failure(build, exc)
+    build.result = assemble_result(build, loaded, [s.provenance(n) for n, s in stages.items()], timer.timings)
     return build

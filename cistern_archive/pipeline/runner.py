@@ -282,7 +282,9 @@ STEPS: tuple[tuple[str, Callable[[SiteRun], None]], ...] = (
 """The steps of :func:`build_site`, in order (the names are the keys of ``result.timings_s``)."""
 
 
-class _Timer:
+class StageTimer:
+    """Seconds per named step (``result.timings_s``), announcing each step to ``on_stage`` as it starts."""
+
     def __init__(self, on_stage: Callable[[str], None] | None = None) -> None:
         self.timings: dict[str, float] = {}
         self.on_stage = on_stage
@@ -296,6 +298,13 @@ class _Timer:
             yield
         finally:
             self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 6)
+
+
+def record_failure(build: SiteBuild, exc: StageError) -> None:
+    """Mark ``build`` failed at the stage and input ``exc`` names, with the traceback of its cause."""
+    build.result.status = "failed"
+    build.result.failure = StageFailure(stage=exc.stage, input=exc.input, error=exc.message,
+                                        traceback="".join(traceback.format_exception(exc.__cause__ or exc)))
 
 
 def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
@@ -314,17 +323,13 @@ def build_site(loaded: LoadedRecord, *, registry: Registry | None = None,
     record = loaded.record
     build = SiteBuild(result=SiteResult(site_id=record.id, name=record.name, status="ok"), record=record)
     run = SiteRun(loaded=loaded, registry=registry or default_registry(), build=build)
-    timer = _Timer(on_stage)
+    timer = StageTimer(on_stage)
     try:
         for name, step in STEPS:
             with timer.stage(name):
                 step(run)
     except StageError as exc:
-        build.result.status = "failed"
-        build.result.failure = StageFailure(
-            stage=exc.stage, input=exc.input, error=exc.message,
-            traceback="".join(traceback.format_exception(exc.__cause__ or exc)),
-        )
+        record_failure(build, exc)
     build.result = assemble_result(build, loaded, [s.provenance(n) for n, s in run.stages.items()], timer.timings)
     return build
 

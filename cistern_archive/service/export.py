@@ -16,32 +16,15 @@ from typing import Any
 
 from cistern_archive.archive.bag import BagExport, check_bag_target, pack_bag
 from cistern_archive.archive.repository import Archive, default_archive_dir
-from cistern_archive.catalog.loader import LoadedRecord
-from cistern_archive.core.errors import CatalogError, CisternError
+from cistern_archive.core.errors import CisternError
 from cistern_archive.pipeline.registry import Registry, default_registry
-from cistern_archive.pipeline.validate import validate_catalog
+from cistern_archive.pipeline.validate import find_site
 from cistern_archive.service.publish import publish
 from cistern_archive.service.planning import CURRENT_STATUSES, is_current, plan_site, published_build
 
 
 class NotPublished(CisternError):
     """The site has no published build of its current inputs to pack."""
-
-
-def find_record(catalog: Path, site_id: str, registry: Registry) -> LoadedRecord:
-    """The valid record of ``site_id`` in the catalog.
-
-    Raises
-    ------
-    CatalogError
-        The catalog's problems and the valid ids, when there is no valid record with that id.
-    """
-    report = validate_catalog(catalog, registry)
-    for loaded in report.records:
-        if loaded.record.id == site_id:
-            return loaded
-    known = ", ".join(sorted(r.record.id for r in report.records)) or "none"
-    raise CatalogError(report.problems + [f"{catalog}: no valid site record with id {site_id!r} (valid: {known})"])
 
 
 def stale_reason(site_dir: Path, published: dict[str, Any] | None, key: str) -> str:
@@ -91,7 +74,7 @@ def export_bag(site_id: str, bag: Path, *, catalog: Path, out: Path, archive: Pa
     """
     registry = registry or default_registry()
     catalog, out, bag = Path(catalog).resolve(), Path(out).resolve(), Path(bag).resolve()
-    loaded = find_record(catalog, site_id, registry)
+    loaded = find_site(catalog, site_id, registry)
     check_bag_target(bag, site_id)  # refuse before any work; checked again just before the swap
     site_dir = out / site_id
     hint = f"run rebuild first (cistern-archive rebuild --catalog {catalog} --out {out} --site {site_id}" + \
