@@ -531,3 +531,26 @@ def test_convergence_figure_draws_the_thresholds_the_histories_carry(tmp_path):
     assert history_thresholds(bare) == ([], [])
     fig = convergence_figure(tmp_path / "d.png", bare, ["a", "b"], dpi=40)
     assert not fig.axes[0].texts and not fig.axes[1].texts
+
+
+def test_index_shows_a_surveys_track_errors_beside_the_published_rows(tmp_path):
+    from cistern_archive.pipeline.results import SiteResult, TrackErrors, TrackSummary
+    from cistern_archive.report.index import IndexEntry, render_index
+
+    track = TrackSummary(fixes=120, span_s=600.0, revolutions=40, revolutions_available=40, clock_offset_s=-0.7,
+                         tracks=[TrackErrors(name="pipeline", start_aligned={"mean_m": 2.381, "sd_m": 1.03,
+                                                                             "max_m": 4.94, "fixes": 120},
+                                             rigid={"mean_m": 2.151, "sd_m": 0.9, "max_m": 4.0, "fixes": 120})],
+                         published_source="Mallios et al. 2014, Table 2",
+                         published=[{"method": "EKF SLAM", "mean_m": 1.91, "sd_m": 1.32, "max_m": 5.08}])
+    survey = SiteResult(site_id="marina", name="Marina", status="ok", track=track)
+    cistern = SiteResult(site_id="pool", name="Pool", status="ok")
+    html = render_index([IndexEntry.from_result(cistern), IndexEntry.from_result(survey)], tmp_path).read_text()
+    head, rows = read_table(html, "track-table")
+    assert head == ["Site", "Track", "Mean (m)", "SD (m)", "Max (m)", "Rigid mean (m)", "Fixes"]
+    assert rows == [["Marina", "pipeline", "2.381", "1.030", "4.940", "2.151", "120"],
+                    ["published: EKF SLAM", "1.910", "1.320", "5.080", "—", "—"]]
+    assert "Mallios et al. 2014, Table 2" in html
+    cisterns_only = tmp_path / "cisterns"
+    cisterns_only.mkdir()
+    assert 'id="track-table"' not in render_index([IndexEntry.from_result(cistern)], cisterns_only).read_text()

@@ -13,7 +13,7 @@ from typing import Literal
 import numpy as np
 
 from cistern_archive import __version__
-from cistern_archive.pipeline.results import DimensionResult, SiteResult
+from cistern_archive.pipeline.results import DimensionResult, SiteResult, TrackSummary
 from cistern_archive.pipeline.status import MAX_PROBE_STD_M
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import build_time_from_env, format_time
@@ -42,6 +42,8 @@ class IndexEntry:
     page : str
         Link to the site page relative to the index's folder.
     dimensions : tuple of DimensionResult
+    track : TrackSummary or None
+        A moving survey's track errors against its ground truth (``result.json``'s ``track``).
     """
 
     site_id: str
@@ -55,6 +57,7 @@ class IndexEntry:
     thumbnail: str | None = None
     page: str = ""
     dimensions: tuple[DimensionResult, ...] = field(default_factory=tuple)
+    track: TrackSummary | None = None
 
     @classmethod
     def from_result(
@@ -86,6 +89,7 @@ class IndexEntry:
             thumbnail=thumbnail,
             page=page or f"{result.site_id}/index.html",
             dimensions=tuple(result.dimensions),
+            track=result.track,
         )
 
 
@@ -189,6 +193,35 @@ def summary_figures(entries: Sequence[IndexEntry]) -> list[dict[str, str]]:
     return figures
 
 
+TRACK_COLUMNS = (
+    TableColumn("mean", "Mean (m)", "mean horizontal distance to the DGPS fixes, the track started on the first fix"),
+    TableColumn("sd", "SD (m)", "its standard deviation"),
+    TableColumn("max", "Max (m)", "its largest value"),
+    TableColumn("rigid", "Rigid mean (m)", "the mean after the best rigid 2-D alignment of the whole track onto "
+                                           "the fixes (what remains once a start offset and heading are removed)"),
+    TableColumn("fixes", "Fixes", "DGPS fixes the errors are measured at"),
+)
+
+
+def track_table(entries: Sequence[IndexEntry]) -> list[dict]:
+    """One row per moving survey and estimated track (as on the survey's own page), then the published
+    rows the record names for that run, marked as published."""
+    rows = []
+    for entry in entries:
+        if entry.track is None:
+            continue
+        own = [{"name": t.name, "published": False,
+                "cells": [number(t.start_aligned.get("mean_m")), number(t.start_aligned.get("sd_m")),
+                          number(t.start_aligned.get("max_m")), number(t.rigid.get("mean_m")),
+                          str(t.start_aligned.get("fixes", entry.track.fixes))]} for t in entry.track.tracks]
+        published = [{"name": str(r["method"]), "published": True,
+                      "cells": [number(r.get("mean_m")), number(r.get("sd_m")), number(r.get("max_m")), "—", "—"]}
+                     for r in entry.track.published]
+        for k, row in enumerate(own + published):
+            rows.append({**row, "site": entry.name, "page": entry.page, "site_rows": len(own) + len(published) if k == 0 else 0})
+    return rows
+
+
 def render_index(
     entries: Sequence[IndexEntry],
     out_dir: Path,
@@ -218,6 +251,9 @@ def render_index(
         diff_rows=rows,
         summary_figures=summary_figures(entries),
         weak_threshold=f"{MAX_PROBE_STD_M:.2f}",
+        track_columns=TRACK_COLUMNS,
+        track_rows=track_table(entries),
+        track_sources=sorted({e.track.published_source for e in entries if e.track and e.track.published_source}),
     )
     path = out_dir / "index.html"
     path.write_text(html, encoding="utf-8")
