@@ -121,6 +121,10 @@ def depth_annotations(depth_range: tuple[float, float], n: int = 5) -> dict[floa
     return {float(-d): f"{d:.1f}" for d in np.linspace(depth_range[0], depth_range[1], n)}
 
 
+PLAN_OUTLINE_PX = 3.0
+"""Width of the walls' black outline in the top view (pixels)."""
+
+
 def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tuple[float, float]) -> dict[str, str]:
     """Render :data:`VIEWS` off screen into ``out_dir/model-<view>.png``.
 
@@ -153,10 +157,14 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
                    position_y=0.12, width=0.07, height=0.76, title_font_size=22, label_font_size=18)
         whole = plotter.add_mesh(mesh, scalar_bar_args=bar, annotations=depth_annotations(depth_range), **style)
         cut = plotter.add_mesh(section, show_scalar_bar=False, **style)
+        # Seen from above, a vertical wall is a band one grid cell wide: its outline, drawn in black,
+        # makes the plan read as a plan.
+        outline = plotter.add_silhouette(mesh, color="black", line_width=PLAN_OUTLINE_PX)
         for view in VIEWS:
             plotter.suppress_rendering = True
             whole.SetVisibility(view.key != "section")
             cut.SetVisibility(view.key == "section")
+            outline.SetVisibility(view.key == "top")
             a, b = scale_bar(view.key, bounds, length)
             plotter.add_mesh(pyvista.Line(a, b), color="black", line_width=5, name="scale-bar")
             plotter.add_point_labels(
