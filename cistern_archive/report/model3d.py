@@ -118,11 +118,24 @@ def label_offset(view: str, bounds: tuple[float, ...]) -> np.ndarray:
 def depth_annotations(depth_range: tuple[float, float], n: int = 5) -> dict[float, str]:
     """Colour-bar labels: ``n`` depths from the shallowest (top of the bar) to the deepest, placed at
     their elevation (``-depth``), the scalar the renders are coloured by."""
-    return {float(-d): f"{d:.1f}" for d in np.linspace(depth_range[0], depth_range[1], n)}
+    return {float(-d): f"{round(float(d), 1) + 0.0:.1f}" for d in np.linspace(depth_range[0], depth_range[1], n)}
 
 
-PLAN_OUTLINE_PX = 3.0
-"""Width of the walls' black outline in the top view (pixels)."""
+PLAN_COLOUR = "#303030"
+"""Colour of the walls' footprint in the top view."""
+PLAN_LINE_PX = 3.0
+"""Width of the footprint's lines in the top view (pixels): flattened, a vertical wall is a line."""
+
+
+def plan_footprint(mesh):
+    """The mesh flattened onto a plane just below its lowest point (the top view's plan of the walls,
+    drawn as lines: a flattened vertical wall has no area)."""
+    flat = mesh.copy(deep=True)
+    z0 = float(mesh.bounds[4]) - 0.01 * max(float(mesh.bounds[5] - mesh.bounds[4]), 1.0)
+    points = np.array(flat.points, dtype=np.float64)
+    points[:, 2] = z0
+    flat.points = points
+    return flat
 
 
 def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tuple[float, float]) -> dict[str, str]:
@@ -157,9 +170,11 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
                    position_y=0.12, width=0.07, height=0.76, title_font_size=22, label_font_size=18)
         whole = plotter.add_mesh(mesh, scalar_bar_args=bar, annotations=depth_annotations(depth_range), **style)
         cut = plotter.add_mesh(section, show_scalar_bar=False, **style)
-        # Seen from above, a vertical wall is a band one grid cell wide: its outline, drawn in black,
-        # makes the plan read as a plan.
-        outline = plotter.add_silhouette(mesh, color="black", line_width=PLAN_OUTLINE_PX)
+        # Seen from straight above, a vertical wall is edge-on and all but vanishes: the walls' footprint,
+        # flattened below the model in dark grey, shows them as a plan does (a sloping wall still shows
+        # its own colours, which hide the footprint beneath).
+        outline = plotter.add_mesh(plan_footprint(mesh), color=PLAN_COLOUR, style="wireframe", line_width=PLAN_LINE_PX,
+                                   lighting=False, show_scalar_bar=False)
         for view in VIEWS:
             plotter.suppress_rendering = True
             whole.SetVisibility(view.key != "section")
