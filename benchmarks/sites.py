@@ -76,9 +76,10 @@ from cistern_archive.catalog.models import StageChoice  # noqa: E402
 from cistern_archive.evaluation import in_compass_frame, position_errors as aligned_errors  # noqa: E402
 from cistern_archive.evaluation import reference_frame_errors, strict_json, wilson_interval  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
-from cistern_archive.pipeline.runner import build_site, match_pair, resolve_stages  # noqa: E402
+from cistern_archive.pipeline.runner import build_site, match_pair, record_ties, resolve_stages  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  # noqa: E402
 from cistern_archive.simulation.spec import load_spec  # noqa: E402
+from cistern_plugins.registration import ConvergenceThresholds, ReferenceModel  # noqa: E402
 
 
 def with_localizer(loaded, localizer: tuple[str | None, dict] | None):
@@ -125,6 +126,40 @@ class SiteTruth:
         """Distance (m) of a match's estimate from the truth displacement in scan i's compass frame."""
         expected = in_compass_frame(self.xy[match.j] - self.xy[match.i], self.compass_err[match.i])
         return float(np.hypot(match.dx_m - expected[0], match.dy_m - expected[1]))
+
+
+def placeable_scans(truth: SiteTruth, record, scans) -> int:
+    """The most scans any localizer could place from pair-wise matches: the largest group that pairs
+    sharing at least the verification's ``min_inliers`` wall points at their true relative pose (one
+    depth level, within sonar range; :meth:`ReferenceModel.assess_pair`) and the record's vertical ties
+    join. A pair below that minimum cannot pass any built-in matcher's verification, whatever it
+    estimates; so ``placed / placeable`` separates what the matching misses from what the site's
+    stations never shared."""
+    limits = ConvergenceThresholds()
+    n = len(scans)
+    parent = list(range(n))
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    index = {s.station: k for k, s in enumerate(record.scans)}
+    links = [(index[t.lower], index[t.upper]) for t in record_ties(record) if t.lower in index and t.upper in index]
+    for a, b in combinations(range(n), 2):
+        offset = truth.xy[b] - truth.xy[a]
+        if truth.cross_level(a, b) or np.hypot(*offset) > min(scans[a].max_range_m, scans[b].max_range_m):
+            continue
+        pose = np.array([*in_compass_frame(offset, truth.compass_err[a]), truth.compass_err[a] - truth.compass_err[b]])
+        if ReferenceModel(scans[a]).assess_pair(scans[b], pose, limits).inliers >= limits.min_inliers:
+            links.append((a, b))
+    for a, b in links:
+        parent[root(a)] = root(b)
+    sizes: dict[int, int] = {}
+    for k in range(n):
+        sizes[root(k)] = sizes.get(root(k), 0) + 1
+    return max(sizes.values(), default=0)
 
 
 def far_pair_scores(loaded, build, truth: SiteTruth, limit: int) -> list[dict]:
@@ -183,6 +218,7 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
         "failure": build.result.error,
         "scans": len(scans),
         "placed": int(poses.placed.sum()) if poses is not None else 0,
+        "placeable": placeable_scans(truth, record, scans),
         "median_position_error_m": statistics.median(position_errors) if position_errors else float("nan"),
         "max_position_error_m": max(position_errors) if position_errors else float("nan"),
         "aligned_errors_m": [float(e) for e in aligned],
@@ -214,7 +250,7 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
 def failed_row(record, build, seconds: float) -> dict:
     """The row of a site whose build stopped before its scans were segmented: nothing placed."""
     nan = float("nan")
-    row = {key: 0 for key in ("placed", "eligible_pairs", "eligible_pairs_ok", "pairs_ge50", "pairs_ge50_ok",
+    row = {key: 0 for key in ("placed", "placeable", "eligible_pairs", "eligible_pairs_ok", "pairs_ge50", "pairs_ge50_ok",
                               "pairs", "pairs_converged", "false_convergences", "false_convergences_no_overlap",
                               "far_pairs", "far_pairs_converged", "cross_level_pairs", "cross_level_converged")}
     row.update({key: nan for key in ("median_position_error_m", "max_position_error_m", "median_aligned_error_m",
@@ -255,6 +291,7 @@ def random_summary(rows: list[dict]) -> dict:
         "median_aligned_error_m": float(np.median(errors)) if errors else float("nan"),
         "max_aligned_error_m": float(np.max(errors)) if errors else float("nan"),
         "silent_wrong_sites": sum(r["silent_wrong"] for r in rows),
+        "placeable": sum(r["placeable"] for r in rows),
         "pairs_ge50_rejected": sum(len(r["pairs_ge50_rejected_reasons"]) for r in rows),
         "pairs_ge50_rejected_correct": sum(r["pairs_ge50_rejected_correct"] for r in rows),
     }
@@ -361,6 +398,9 @@ def random_main(args) -> int:
         groups[f"{n} chamber{'s' if n > 1 else ''}"] = random_summary([r for r in rows if r["chambers"] == n])
     print(breakdown_table(groups))
     everything = groups["all"]
+    for label, group in groups.items():
+        print(f"{label}: {group['placeable']} of {group['scans']} scans placeable from pair-wise matches (a chain "
+              f"of pairs sharing enough wall at the truth), {group['placed']} placed")
     print(f"pairs with >=50% overlap rejected: {everything['pairs_ge50_rejected']}, of which "
           f"{everything['pairs_ge50_rejected_correct']} with an estimate within 0.10 m")
     failed = [r["site"] for r in rows if r["status"] == "failed"]
