@@ -52,3 +52,29 @@ def test_ridge_is_not_a_rival_but_a_separate_peak_is():
     seg = wall[40:81]  # a 2 m piece of the wall, matched at several shifts along it
     assert valley(pyr, seg, angles, best, along) > 0.8
     assert valley(pyr, seg, angles, best, across) < 0.2
+
+
+def _corridor_scan(x0: float) -> "RangeScan":
+    """A station at ``x = x0`` in a long corridor (walls at y = ±1 m, a cross wall at x = 8 m): seen
+    from 5 m off, only the side walls are in range, so along the corridor every shift fits."""
+    from cistern_archive.core.scan import RangeScan
+
+    bearings = np.radians(np.arange(0.0, 360.0, 1.0))
+    with np.errstate(divide="ignore"):
+        to_side = np.where(np.abs(np.sin(bearings)) > 1e-9, 1.0 / np.abs(np.sin(bearings)), np.inf)
+    ranges = np.where(to_side <= 4.0, to_side, np.nan)
+    return RangeScan(bearings, ranges, 0.0, 1.0, 4.0, 0.05, math.radians(3.0), station=f"x{x0:g}")
+
+
+def test_an_ambiguous_match_reports_its_rival_places_and_a_unique_one_none():
+    rng = np.random.default_rng(3)
+    res = CorrelativeMatcher().match(_corridor_scan(0.0), _corridor_scan(1.0), CorrelativeParams(), rng=rng)
+    assert not res.converged and res.reason.startswith("ambiguous")
+    assert 1 <= len(res.alternatives) <= 3
+    for rival in res.alternatives:
+        assert abs(rival.dy_m - res.dy_m) < 0.2  # along the corridor, not across it
+        assert abs(rival.dx_m - res.dx_m) > CorrelativeParams().ambiguity_distance_m
+        assert rival.radius_m == CorrelativeParams().ambiguity_distance_m
+    pair = simulated_pair(rng, overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0), noise_m=0.02)
+    unique = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)
+    assert unique.converged and unique.alternatives == ()

@@ -48,6 +48,14 @@ def test_good_output_passes_unchanged_and_a_failure_keeps_its_own_reason():
     assert failed.reason == "too few echoes" and not failed.converged
 
 
+def test_unusable_alternatives_are_dropped_and_usable_ones_kept():
+    from cistern_archive.pipeline.contracts import MatchGuess
+
+    good, nan, flat = MatchGuess(2.0, 1.0, 0.0, 0.5), MatchGuess(float("nan"), 1.0, 0.0, 0.5), MatchGuess(1.0, 1.0, 0.0, 0.0)
+    checked = checked_match(_result(alternatives=(nan, good, flat)))
+    assert checked.alternatives == (good,) and checked.converged
+
+
 class _Degenerate:
     """A matcher that always claims convergence with NaN: the runner must contain it."""
 

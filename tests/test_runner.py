@@ -149,3 +149,29 @@ def pool_scans(catalog: Path):
     from cistern_archive.pipeline.runner import range_scans
 
     return range_scans(validate_record(catalog / "sites" / "lair-pool.yaml", catalog))
+
+
+def test_a_pair_matched_globally_is_matched_again_when_asked_with_a_guess(bundled_catalog):
+    """``match_rounds`` skips a pair asked for again with the same guess, not one asked with a new guess."""
+    from cistern_archive.pipeline.contracts import GuidedLocalizer, GuidedMatcher, MatchGuess
+    from cistern_archive.pipeline.runner import Stage, match_pair, match_rounds
+    from cistern_plugins.wls import WLSLocalizer
+    from tests.stage_plugins import CompassOnlyMatcher
+
+    guess = MatchGuess(1.0, 2.0, 0.1, 0.5)
+
+    class Localizer(WLSLocalizer, GuidedLocalizer):
+        def pairs(self, n, params):
+            return [(0, 1)]
+
+        def guided_pairs(self, scans, matches, params, *, ties=()):
+            return [(0, 1, None), (0, 1, guess)]
+
+    class GuessingMatcher(CompassOnlyMatcher, GuidedMatcher):
+        def match(self, reference, moving, params, *, rng, guess=None):
+            return super().match(reference, moving, params, rng=rng)
+
+    scans = pool_scans(bundled_catalog)
+    matcher = Stage.of("matcher", GuessingMatcher())
+    matches = match_rounds(scans, Stage.of("localizer", Localizer()), lambda i, j, g: match_pair(matcher, scans, 1, i, j, g))
+    assert [(m.i, m.j, m.guess) for m in matches] == [(0, 1, None), (0, 1, guess)]

@@ -227,3 +227,33 @@ def test_a_join_that_puts_walls_into_water_other_scans_saw_is_refused():
     why = site([long_room] * 2 + [short_room] * 2)
     assert "free space" in why, why
     assert site([long_room] * 4) == ""
+
+
+def test_a_break_with_one_unrivalled_estimate_asks_for_the_reverse_match_around_it():
+    """Consecutive stations in different groups: ``i → j`` tentative without rivals and ``j → i`` off
+    globally gets ``j → i`` again around the inverse of ``i → j``; an estimate with rivals does not,
+    nor does a pair whose reverse already agrees or was already guided."""
+    from dataclasses import replace
+
+    from cistern_archive.pipeline.contracts import MatchGuess
+
+    loc, p = SiteGraphLocalizer(), SiteGraphParams(guess_radius_m=0.4)
+    scans = _scans(4)
+    base = [_match(0, 1), _match(1, 0), _match(2, 3), _match(3, 2)]
+    forward = _match(1, 2, converged=False, tentative=True, confidence=0.4)
+    wrong_reverse = _match(2, 1, offset=(4.0, 1.0), converged=False, tentative=False)
+    asked = [(i, j, g) for i, j, g in loc.guided_pairs(scans, base + [forward, wrong_reverse], p) if (i, j) == (2, 1)]
+    assert len(asked) == 1 and asked[0][2] is not None
+    guess = asked[0][2]
+    np.testing.assert_allclose([guess.dx_m, guess.dy_m, guess.radius_m], [*(TRUTH[1] - TRUTH[2]), 0.4], atol=1e-9)
+
+    rivalled = replace(forward, alternatives=(MatchGuess(3.0, 2.0, 0.0, 0.5),))
+    assert not [a for a in loc.guided_pairs(scans, base + [rivalled, wrong_reverse], p) if a[:2] == (2, 1)]
+    agreeing = _match(2, 1)
+    assert not [a for a in loc.guided_pairs(scans, base + [forward, agreeing], p) if a[:2] == (2, 1) and a[2]]
+    guided = replace(wrong_reverse, guess=guess)
+    assert not [a for a in loc.guided_pairs(scans, base + [forward, guided], p) if a[:2] == (2, 1) and a[2]]
+
+    confirmed = replace(_match(2, 1, converged=False, tentative=True, confidence=0.6), guess=guess)
+    poses = loc.localize(scans, base + [forward, wrong_reverse, confirmed], p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6

@@ -118,6 +118,10 @@ class MatchResult:
         The matcher's calibrated probability that a converged estimate is right (within the accuracy
         its verification is calibrated for), when it estimates one; localizers order and weigh
         matches by it.
+    alternatives : tuple of MatchGuess
+        Other places the matcher found nearly as good as its estimate (the rival peaks of an ambiguous
+        search), best first, each with the half-width of its peak; empty when the estimate had no rival.
+        A localizer can tell from it that an estimate is one of several look-alike places.
     """
 
     i: int
@@ -135,6 +139,7 @@ class MatchResult:
     guess: MatchGuess | None = None
     confidence: float | None = None
     tentative: bool = False
+    alternatives: tuple[MatchGuess, ...] = ()
 
     @property
     def translation(self) -> np.ndarray:

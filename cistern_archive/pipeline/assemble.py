@@ -12,7 +12,7 @@ import numpy as np
 from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
-from cistern_archive.pipeline.contracts import DimensionRow, Poses
+from cistern_archive.pipeline.contracts import DimensionRow, MatchGuess, Poses
 from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.results import (
     DimensionResult,
@@ -65,7 +65,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         PairResult(i=m.i, j=m.j, dx_m=finite_or_none(m.dx_m), dy_m=finite_or_none(m.dy_m), dyaw_rad=finite_or_none(m.dyaw_rad),
                    weight=finite_or_none(m.weight) or 0.0, confidence=finite_or_none(m.confidence), tentative=m.tentative,
                    converged=m.converged, iterations=m.iterations, seconds=round(m.seconds, 6), reason=m.reason,
-                   guess=None if m.guess is None else [m.guess.dx_m, m.guess.dy_m, m.guess.dyaw_rad, m.guess.radius_m])
+                   guess=None if m.guess is None else guess_row(m.guess), alternatives=[guess_row(a) for a in m.alternatives])
         for m in build.matches
     ]
     if build.table is not None:
@@ -143,3 +143,8 @@ def _unmeasured(record: SiteRecord, dimensions: Sequence[DimensionResult]) -> li
             note = notes.get((ref.name, ref.kind)) or "no wall found"
             out.append(f"{ref.name} ({ref.kind}): {note}")
     return out
+
+
+def guess_row(guess: MatchGuess) -> list[float]:
+    """``[dx_m, dy_m, dyaw_rad, radius_m]`` of a search window (``result.json``)."""
+    return [guess.dx_m, guess.dy_m, guess.dyaw_rad, guess.radius_m]

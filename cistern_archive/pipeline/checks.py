@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from cistern_archive.pipeline.contracts import MatchResult
+from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 
 
 def checked_match(result: MatchResult) -> MatchResult:
@@ -17,8 +17,12 @@ def checked_match(result: MatchResult) -> MatchResult:
     covariance (when given) must be a finite, symmetric, positive-definite 3 × 3 matrix; a confidence
     must lie in [0, 1]. A matcher that breaks this fails only its pair, with a reason naming what was
     wrong; a non-converged pair keeps its reason, and non-finite numbers never reach ``result.json``
-    (:func:`assemble_result` writes them as ``null``).
+    (:func:`assemble_result` writes them as ``null``). Alternatives with a non-finite pose or a radius
+    that is not positive are dropped.
     """
+    alternatives = tuple(a for a in result.alternatives if _usable_guess(a))
+    if alternatives != result.alternatives:
+        result = replace(result, alternatives=alternatives)
     problem = _match_problem(result)
     weight = float(result.weight) if math.isfinite(result.weight) else 0.0
     if not problem:
@@ -28,6 +32,11 @@ def checked_match(result: MatchResult) -> MatchResult:
     reason = result.reason if not result.converged and result.reason else f"unusable matcher output: {problem}"
     return replace(result, converged=False, reason=reason, weight=weight, covariance=None, confidence=None,
                    tentative=False)
+
+
+def _usable_guess(guess: MatchGuess) -> bool:
+    values = (guess.dx_m, guess.dy_m, guess.dyaw_rad, guess.radius_m)
+    return all(isinstance(v, (int, float)) and math.isfinite(v) for v in values) and guess.radius_m > 0
 
 
 def _match_problem(result: MatchResult) -> str:

@@ -63,6 +63,8 @@ class PairResult(Model):
     """A non-converged best estimate a localizer may use where converged matches corroborate it."""
     guess: list[float] | None = None
     """``[dx_m, dy_m, dyaw_rad, radius_m]`` of the window the matcher searched (guided pairs only)."""
+    alternatives: list[list[float]] = Field(default_factory=list)
+    """``[dx_m, dy_m, dyaw_rad, radius_m]`` of each rival place the matcher found nearly as good."""
 
 
 class DimensionResult(Model):

@@ -279,6 +279,8 @@ class CorrelativeMatcher(GuidedMatcher):
         confidence = match_confidence(quality, p.limits())
         cov = fit_covariance(model, raw, pose, p.inlier_distance_m, quality.rms_m)
         result = _result(pose, float(scores[0]), not reason, reason, iterations, start, cov, confidence)
+        if ambiguous:
+            result = replace(result, alternatives=rival_guesses(nodes, angles, centre, p))
         return replace(result, tentative=tentative) if tentative else result
 
 
@@ -311,6 +313,23 @@ def _rival(nodes: np.ndarray, scores: np.ndarray, angles: np.ndarray, p: Correla
     k = far[0]
     ridge = valley(pyr, points, angles, nodes[0], nodes[k]) >= p.valley_ratio * scores[0]
     return float(d[k]), float(da[k]), float(scores[k]), ridge
+
+
+def rival_guesses(nodes: np.ndarray, angles: np.ndarray, centre: np.ndarray, p: CorrelativeParams,
+                  limit: int = 3) -> tuple[MatchGuess, ...]:
+    """Up to ``limit`` rival peaks of an ambiguous search (``MatchResult.alternatives``): among the nodes
+    within ``ambiguity_ratio`` of the best (best first), each farther than ``ambiguity_distance_m`` from
+    the estimate and from every better rival kept, as a guess of that half-width."""
+    kept: list[np.ndarray] = [nodes[0]]
+    out = []
+    for node in nodes[1:]:
+        if all(math.hypot(*(node[:2] - k[:2])) * p.resolution_m > p.ambiguity_distance_m for k in kept):
+            kept.append(node)
+            pose = compose(np.array([node[0] * p.resolution_m, node[1] * p.resolution_m, angles[node[2]]]), centre)
+            out.append(MatchGuess(float(pose[0]), float(pose[1]), float(pose[2]), p.ambiguity_distance_m))
+            if len(out) == limit:
+                break
+    return tuple(out)
 
 
 def valley(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

@@ -11,7 +11,9 @@ builds a graph over the whole site instead, in three steps.
    :class:`~cistern_archive.pipeline.contracts.MatchGuess` — loop closures proposed from a first solution,
    as SLAM systems search around their odometry — and (b) for each scan outside the largest group, a
    global match (no guess, both ways) with the nearest station of another group not tried yet, up to
-   ``global_gap`` stations away.
+   ``global_gap`` stations away, and (c) across a break between consecutive stations, the reverse
+   match again around the inverse of a forward estimate that has no rival place
+   (:func:`reverse_checks`).
    Scans more than ``level_tolerance_m`` apart in depth are never matched: at different depths of a
    bell-shaped cistern the walls differ, and the record's vertical ties (``ties``) join the levels.
 
@@ -156,7 +158,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
                     reach = p.reach_factor * min(scans[i].max_range_m, scans[j].max_range_m)
                     if math.hypot(rel.x(), rel.y()) <= reach:
                         out.append((i, j, MatchGuess(rel.x(), rel.y(), rel.theta(), p.guess_radius_m)))
-        return out + self.bridging_pairs(scans, graph, tried, p)
+        return out + self.bridging_pairs(scans, graph, tried, p) + reverse_checks(graph, matches, p)
 
     def bridging_pairs(self, scans: Sequence[RangeScan], graph: "Graph", tried: set,
                        p: SiteGraphParams) -> list[tuple[int, int, None]]:
@@ -203,6 +205,36 @@ class SiteGraphLocalizer(GuidedLocalizer):
         placed = set(spanning_tree(n, kept, reference))
         reasons = [unplaced_reason(k, reference, graph, matches, labels) for k in range(n)]
         return poses_from_solution(scans, solved, result, placed, reference, reasons)
+
+
+def reverse_checks(graph: Graph, matches: Sequence[MatchResult], p: SiteGraphParams) -> list[tuple[int, int, MatchGuess]]:
+    """Guided reverse matches across a break of the survey's chain: for consecutive stations ``i``, ``j``
+    in different groups whose match ``i → j`` converged or is tentative, with no rival place
+    (``MatchResult.alternatives`` empty), while ``j → i`` was matched only globally and disagrees with it
+    (or gave no estimate), ``j → i`` again around the inverse of ``i → j``.
+    A global search of a station that sees little (a tunnel's) finds a look-alike place as often as the
+    right one; searched around the other direction's estimate, the reverse match confirms it — the
+    two-match agreement a sequence link needs (step 2) — or does not. An estimate with rivals is not
+    re-matched: around a look-alike place the reverse search agrees as readily as around the right one."""
+    by_pair: dict[tuple[int, int], list[MatchResult]] = {}
+    for m in matches:
+        by_pair.setdefault((m.i, m.j), []).append(m)
+    out = []
+    for (i, j), forward in sorted(by_pair.items()):
+        if abs(i - j) != 1 or graph.group[i] == graph.group[j]:
+            continue
+        reverse = by_pair.get((j, i), [])
+        if any(m.guess is not None for m in reverse):
+            continue
+        for m in forward:
+            if not (m.converged or m.tentative) or m.alternatives:
+                continue
+            z = gtsam.Pose2(m.dx_m, m.dy_m, m.dyaw_rad)
+            if any(r.converged and close_enough(z.compose(gtsam.Pose2(r.dx_m, r.dy_m, r.dyaw_rad)), p, z) for r in reverse):
+                continue
+            back = z.inverse()
+            out.append((j, i, MatchGuess(back.x(), back.y(), back.theta(), p.guess_radius_m)))
+    return out
 
 
 def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
