@@ -60,6 +60,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from itertools import combinations
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -128,15 +129,26 @@ class SiteTruth:
         return float(np.hypot(match.dx_m - expected[0], match.dy_m - expected[1]))
 
 
-def placeable_scans(truth: SiteTruth, record, scans) -> int:
-    """The most scans any localizer could place from pair-wise matches: the largest group that pairs
-    sharing at least the verification's ``min_inliers`` wall points at their true relative pose (one
-    depth level, within sonar range; :meth:`ReferenceModel.assess_pair`) and the record's vertical ties
-    join. A pair below that minimum cannot pass any built-in matcher's verification, whatever it
-    estimates; so ``placed / placeable`` separates what the matching misses from what the site's
-    stations never shared."""
+def shared_wall_pairs(truth: SiteTruth, scans) -> list[tuple[int, int]]:
+    """The pairs (one depth level, within sonar range) that share at least the verification's
+    ``min_inliers`` wall points at their true relative pose (:meth:`ReferenceModel.assess_pair`): a pair
+    below that minimum cannot pass any built-in matcher's verification, whatever it estimates."""
     limits = ConvergenceThresholds()
-    n = len(scans)
+    out = []
+    for a, b in combinations(range(len(scans)), 2):
+        offset = truth.xy[b] - truth.xy[a]
+        if truth.cross_level(a, b) or np.hypot(*offset) > min(scans[a].max_range_m, scans[b].max_range_m):
+            continue
+        pose = np.array([*in_compass_frame(offset, truth.compass_err[a]), truth.compass_err[a] - truth.compass_err[b]])
+        if ReferenceModel(scans[a]).assess_pair(scans[b], pose, limits).inliers >= limits.min_inliers:
+            out.append((a, b))
+    return out
+
+
+def placeable_scans(record, n: int, shared: list[tuple[int, int]]) -> int:
+    """The most scans any localizer could place from pair-wise matches: the largest group that the
+    ``shared`` pairs (:func:`shared_wall_pairs`) and the record's vertical ties join. So ``placed /
+    placeable`` separates what the matching misses from what the site's stations never shared."""
     parent = list(range(n))
 
     def root(k: int) -> int:
@@ -146,20 +158,32 @@ def placeable_scans(truth: SiteTruth, record, scans) -> int:
         return k
 
     index = {s.station: k for k, s in enumerate(record.scans)}
-    links = [(index[t.lower], index[t.upper]) for t in record_ties(record) if t.lower in index and t.upper in index]
-    for a, b in combinations(range(n), 2):
-        offset = truth.xy[b] - truth.xy[a]
-        if truth.cross_level(a, b) or np.hypot(*offset) > min(scans[a].max_range_m, scans[b].max_range_m):
-            continue
-        pose = np.array([*in_compass_frame(offset, truth.compass_err[a]), truth.compass_err[a] - truth.compass_err[b]])
-        if ReferenceModel(scans[a]).assess_pair(scans[b], pose, limits).inliers >= limits.min_inliers:
-            links.append((a, b))
-    for a, b in links:
+    ties = [(index[t.lower], index[t.upper]) for t in record_ties(record) if t.lower in index and t.upper in index]
+    for a, b in ties + list(shared):
         parent[root(a)] = root(b)
     sizes: dict[int, int] = {}
     for k in range(n):
         sizes[root(k)] = sizes.get(root(k), 0) + 1
     return max(sizes.values(), default=0)
+
+
+def break_pairs(build, truth: SiteTruth, shared: list[tuple[int, int]]) -> list[dict]:
+    """The pairs that could have joined an unplaced scan to the placed ones (a :func:`shared_wall_pairs`
+    pair with one scan placed and one not), each with what the matching made of it: whether it was
+    asked, the best error of its estimates (either direction) and whether the truth was among the
+    rival places the matcher reported (``MatchResult.alternatives``, within 0.25 m)."""
+    placed = build.poses.placed if build.poses is not None else np.zeros(len(build.range_scans), bool)
+    rows = []
+    for a, b in shared:
+        if placed[a] == placed[b]:
+            continue
+        matches = [m for m in build.matches if {m.i, m.j} == {a, b}]
+        errors = [truth.pair_error(m) for m in matches if math.isfinite(m.dx_m) and math.isfinite(m.dy_m)]
+        rivals = [truth.pair_error(SimpleNamespace(i=m.i, j=m.j, dx_m=r.dx_m, dy_m=r.dy_m))
+                  for m in matches for r in m.alternatives]
+        rows.append({"i": a, "j": b, "asked": bool(matches), "best_error_m": min(errors, default=float("nan")),
+                     "truth_among_rivals": any(e <= WRONG_SCAN_M for e in rivals)})
+    return rows
 
 
 def far_pair_scores(loaded, build, truth: SiteTruth, limit: int) -> list[dict]:
@@ -194,6 +218,7 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
     if len(scans) < len(record.scans):  # the build failed before every scan was segmented
         return failed_row(record, build, seconds)
     truth = SiteTruth(record, scans, catalog)
+    shared = shared_wall_pairs(truth, scans)
     pairs = []
     for m in build.matches:
         estimate_err = truth.pair_error(m) if math.isfinite(m.dx_m) and math.isfinite(m.dy_m) else float("nan")
@@ -218,7 +243,8 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
         "failure": build.result.error,
         "scans": len(scans),
         "placed": int(poses.placed.sum()) if poses is not None else 0,
-        "placeable": placeable_scans(truth, record, scans),
+        "placeable": placeable_scans(record, len(scans), shared),
+        "break_pairs": break_pairs(build, truth, shared),
         "median_position_error_m": statistics.median(position_errors) if position_errors else float("nan"),
         "max_position_error_m": max(position_errors) if position_errors else float("nan"),
         "aligned_errors_m": [float(e) for e in aligned],
@@ -257,7 +283,8 @@ def failed_row(record, build, seconds: float) -> dict:
                                      "max_aligned_error_m", "worst_false_convergence_m", "median_pair_seconds")})
     row.update(site=record.id, status=build.result.status, failure=build.result.error, scans=len(record.scans),
                aligned_errors_m=[], pairs_ge50_rejected_correct=0, silent_wrong=False, pairs_ge50_rejected_reasons=[],
-               far_pairs_converged_errors_m=[], site_seconds=seconds, unplaced_reasons=[build.result.error or ""])
+               far_pairs_converged_errors_m=[], site_seconds=seconds, unplaced_reasons=[build.result.error or ""],
+               break_pairs=[])
     return row
 
 
@@ -292,6 +319,10 @@ def random_summary(rows: list[dict]) -> dict:
         "max_aligned_error_m": float(np.max(errors)) if errors else float("nan"),
         "silent_wrong_sites": sum(r["silent_wrong"] for r in rows),
         "placeable": sum(r["placeable"] for r in rows),
+        "break_pairs": sum(len(r["break_pairs"]) for r in rows),
+        "break_pairs_asked": sum(p["asked"] for r in rows for p in r["break_pairs"]),
+        "break_pairs_estimated_right": sum(p["best_error_m"] <= OK_PAIR_M for r in rows for p in r["break_pairs"]),
+        "break_pairs_truth_among_rivals": sum(p["truth_among_rivals"] for r in rows for p in r["break_pairs"]),
         "pairs_ge50_rejected": sum(len(r["pairs_ge50_rejected_reasons"]) for r in rows),
         "pairs_ge50_rejected_correct": sum(r["pairs_ge50_rejected_correct"] for r in rows),
     }
@@ -401,6 +432,10 @@ def random_main(args) -> int:
     for label, group in groups.items():
         print(f"{label}: {group['placeable']} of {group['scans']} scans placeable from pair-wise matches (a chain "
               f"of pairs sharing enough wall at the truth), {group['placed']} placed")
+    print(f"pairs that could join an unplaced scan to the placed ones: {everything['break_pairs']}, asked "
+          f"{everything['break_pairs_asked']}, an estimate within {OK_PAIR_M:.2f} m "
+          f"{everything['break_pairs_estimated_right']}, the truth among the matcher's rival places "
+          f"{everything['break_pairs_truth_among_rivals']}")
     print(f"pairs with >=50% overlap rejected: {everything['pairs_ge50_rejected']}, of which "
           f"{everything['pairs_ge50_rejected_correct']} with an estimate within 0.10 m")
     failed = [r["site"] for r in rows if r["status"] == "failed"]
