@@ -152,7 +152,8 @@ def pool_scans(catalog: Path):
 
 
 def test_a_pair_matched_globally_is_matched_again_when_asked_with_a_guess(bundled_catalog):
-    """``match_rounds`` skips a pair asked for again with the same guess, not one asked with a new guess."""
+    """``match_rounds``: a pair matched globally is matched once more when asked with a guess, and never
+    again after that, whatever guess it is asked with."""
     from cistern_archive.pipeline.contracts import GuidedLocalizer, GuidedMatcher, MatchGuess
     from cistern_archive.pipeline.runner import Stage, match_pair, match_rounds
     from cistern_plugins.wls import WLSLocalizer
@@ -165,7 +166,7 @@ def test_a_pair_matched_globally_is_matched_again_when_asked_with_a_guess(bundle
             return [(0, 1)]
 
         def guided_pairs(self, scans, matches, params, *, ties=()):
-            return [(0, 1, None), (0, 1, guess)]
+            return [(0, 1, None), (0, 1, guess), (0, 1, MatchGuess(1.1, 2.0, 0.1, 0.5))]
 
     class GuessingMatcher(CompassOnlyMatcher, GuidedMatcher):
         def match(self, reference, moving, params, *, rng, guess=None):

@@ -156,21 +156,26 @@ def match_rounds(
     the matches so far (each pair with a :class:`MatchGuess` or ``None``), until it asks for no new
     pair or ``MAX_MATCH_ROUNDS`` rounds have run. ``run_pair(i, j, guess)`` matches one pair (e.g. with
     :func:`match_pair`); ``plan(label, func)`` runs the localizer's own calls (the runner uses it to
-    label a failure). A pair already matched with the same guess is not matched again."""
+    label a failure). A pair is matched at most once without a guess and once with one: a
+    global match may be followed by a guided one, but a pair asked again is not matched again."""
     params = localizer.params
     pairs = plan("pair list", lambda: localizer.instance.pairs(len(scans), params))
     matches = [run_pair(i, j, None) for i, j in pairs]
     if not localizer.plugin.has(GuidedLocalizer):
         return matches
-    done = {(i, j, None) for i, j in pairs}
+    matched, guided = set(pairs), set()
     for round_no in range(2, MAX_MATCH_ROUNDS + 1):
         asked = plan(f"pair list of round {round_no}",
                      lambda: localizer.instance.guided_pairs(scans, list(matches), params, ties=tuple(ties)))
-        fresh = list(dict.fromkeys((i, j, guess) for i, j, guess in asked if (i, j, guess) not in done))
+        fresh: dict[tuple[int, int], MatchGuess | None] = {}
+        for i, j, guess in asked:
+            if (i, j) not in fresh and (i, j) not in (matched if guess is None else guided):
+                fresh[(i, j)] = guess
         if not fresh:
             break
-        done.update(fresh)
-        matches += [run_pair(i, j, guess) for i, j, guess in fresh]
+        matched.update(fresh)
+        guided.update(pair for pair, guess in fresh.items() if guess is not None)
+        matches += [run_pair(i, j, guess) for (i, j), guess in fresh.items()]
     return matches
 
 
