@@ -60,9 +60,10 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from itertools import combinations
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVEL_TOLERANCE_M = 0.25
@@ -123,10 +124,19 @@ class SiteTruth:
                 self._overlaps[key] = overlap_fraction(self.xy[i], self.xy[j], rings, self.max_range)
         return self._overlaps[key]
 
+    def true_pose(self, i: int, j: int) -> np.ndarray:
+        """Where scan ``j`` truly lies in scan ``i``'s compass frame: displacement and yaw correction."""
+        offset = in_compass_frame(self.xy[j] - self.xy[i], self.compass_err[i])
+        return np.array([offset[0], offset[1], self.compass_err[i] - self.compass_err[j]])
+
+    def displacement_error(self, i: int, j: int, dx_m: float, dy_m: float) -> float:
+        """Distance (m) of an estimated displacement of ``j`` in ``i``'s frame from the truth."""
+        expected = self.true_pose(i, j)
+        return float(np.hypot(dx_m - expected[0], dy_m - expected[1]))
+
     def pair_error(self, match) -> float:
         """Distance (m) of a match's estimate from the truth displacement in scan i's compass frame."""
-        expected = in_compass_frame(self.xy[match.j] - self.xy[match.i], self.compass_err[match.i])
-        return float(np.hypot(match.dx_m - expected[0], match.dy_m - expected[1]))
+        return self.displacement_error(match.i, match.j, match.dx_m, match.dy_m)
 
 
 def shared_wall_pairs(truth: SiteTruth, scans) -> list[tuple[int, int]]:
@@ -134,13 +144,15 @@ def shared_wall_pairs(truth: SiteTruth, scans) -> list[tuple[int, int]]:
     ``min_inliers`` wall points at their true relative pose (:meth:`ReferenceModel.assess_pair`): a pair
     below that minimum cannot pass any built-in matcher's verification, whatever it estimates."""
     limits = ConvergenceThresholds()
+    models: dict[int, ReferenceModel] = {}
     out = []
     for a, b in combinations(range(len(scans)), 2):
-        offset = truth.xy[b] - truth.xy[a]
-        if truth.cross_level(a, b) or np.hypot(*offset) > min(scans[a].max_range_m, scans[b].max_range_m):
+        reach = min(scans[a].max_range_m, scans[b].max_range_m)
+        if truth.cross_level(a, b) or np.hypot(*(truth.xy[b] - truth.xy[a])) > reach:
             continue
-        pose = np.array([*in_compass_frame(offset, truth.compass_err[a]), truth.compass_err[a] - truth.compass_err[b]])
-        if ReferenceModel(scans[a]).assess_pair(scans[b], pose, limits).inliers >= limits.min_inliers:
+        if a not in models:
+            models[a] = ReferenceModel(scans[a])
+        if models[a].assess_pair(scans[b], truth.true_pose(a, b), limits).inliers >= limits.min_inliers:
             out.append((a, b))
     return out
 
@@ -149,22 +161,15 @@ def placeable_scans(record, n: int, shared: list[tuple[int, int]]) -> int:
     """The most scans any localizer could place from pair-wise matches: the largest group that the
     ``shared`` pairs (:func:`shared_wall_pairs`) and the record's vertical ties join. So ``placed /
     placeable`` separates what the matching misses from what the site's stations never shared."""
-    parent = list(range(n))
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    index = {s.station: k for k, s in enumerate(record.scans)}
-    ties = [(index[t.lower], index[t.upper]) for t in record_ties(record) if t.lower in index and t.upper in index]
-    for a, b in ties + list(shared):
-        parent[root(a)] = root(b)
-    sizes: dict[int, int] = {}
-    for k in range(n):
-        sizes[root(k)] = sizes.get(root(k), 0) + 1
-    return max(sizes.values(), default=0)
+    if n == 0:
+        return 0
+    index = record.station_index()
+    links = [(index[t.lower], index[t.upper]) for t in record_ties(record) if t.lower in index and t.upper in index]
+    links += list(shared)
+    rows, cols = (np.array([link[k] for link in links], dtype=np.int64) for k in (0, 1))
+    graph = coo_matrix((np.ones(len(links)), (rows, cols)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return int(np.bincount(labels).max())
 
 
 def break_pairs(build, truth: SiteTruth, shared: list[tuple[int, int]]) -> list[dict]:
@@ -173,14 +178,16 @@ def break_pairs(build, truth: SiteTruth, shared: list[tuple[int, int]]) -> list[
     asked, the best error of its estimates (either direction) and whether the truth was among the
     rival places the matcher reported (``MatchResult.alternatives``, within 0.25 m)."""
     placed = build.poses.placed if build.poses is not None else np.zeros(len(build.range_scans), bool)
+    by_pair: dict[frozenset, list] = {}
+    for m in build.matches:
+        by_pair.setdefault(frozenset((m.i, m.j)), []).append(m)
     rows = []
     for a, b in shared:
         if placed[a] == placed[b]:
             continue
-        matches = [m for m in build.matches if {m.i, m.j} == {a, b}]
+        matches = by_pair.get(frozenset((a, b)), [])
         errors = [truth.pair_error(m) for m in matches if math.isfinite(m.dx_m) and math.isfinite(m.dy_m)]
-        rivals = [truth.pair_error(SimpleNamespace(i=m.i, j=m.j, dx_m=r.dx_m, dy_m=r.dy_m))
-                  for m in matches for r in m.alternatives]
+        rivals = [truth.displacement_error(m.i, m.j, r.dx_m, r.dy_m) for m in matches for r in m.alternatives]
         rows.append({"i": a, "j": b, "asked": bool(matches), "best_error_m": min(errors, default=float("nan")),
                      "truth_among_rivals": any(e <= WRONG_SCAN_M for e in rivals)})
     return rows

@@ -34,14 +34,17 @@ def checked_match(result: MatchResult) -> MatchResult:
                    tentative=False)
 
 
+def _finite(value: object) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
 def _usable_guess(guess: MatchGuess) -> bool:
-    values = (guess.dx_m, guess.dy_m, guess.dyaw_rad, guess.radius_m)
-    return all(isinstance(v, (int, float)) and math.isfinite(v) for v in values) and guess.radius_m > 0
+    return all(_finite(v) for v in (guess.dx_m, guess.dy_m, guess.dyaw_rad, guess.radius_m)) and guess.radius_m > 0
 
 
 def _match_problem(result: MatchResult) -> str:
     values = {"dx_m": result.dx_m, "dy_m": result.dy_m, "dyaw_rad": result.dyaw_rad, "weight": result.weight}
-    bad = [name for name, value in values.items() if not (isinstance(value, (int, float)) and math.isfinite(value))]
+    bad = [name for name, value in values.items() if not _finite(value)]
     if bad:
         return "non-finite " + ", ".join(bad)
     if result.confidence is not None and not 0.0 <= result.confidence <= 1.0:

@@ -173,13 +173,13 @@ def render_views(mesh, out_dir: Path, config: ReportConfig, *, depth_range: tupl
         # Seen from straight above, a vertical wall is edge-on and all but vanishes: the walls' footprint,
         # flattened below the model in dark grey, shows them as a plan does (a sloping wall still shows
         # its own colours, which hide the footprint beneath).
-        outline = plotter.add_mesh(plan_footprint(mesh), color=PLAN_COLOUR, style="wireframe", line_width=PLAN_LINE_PX,
+        footprint = plotter.add_mesh(plan_footprint(mesh), color=PLAN_COLOUR, style="wireframe", line_width=PLAN_LINE_PX,
                                    lighting=False, show_scalar_bar=False)
         for view in VIEWS:
             plotter.suppress_rendering = True
             whole.SetVisibility(view.key != "section")
             cut.SetVisibility(view.key == "section")
-            outline.SetVisibility(view.key == "top")
+            footprint.SetVisibility(view.key == "top")
             a, b = scale_bar(view.key, bounds, length)
             plotter.add_mesh(pyvista.Line(a, b), color="black", line_width=5, name="scale-bar")
             plotter.add_point_labels(
