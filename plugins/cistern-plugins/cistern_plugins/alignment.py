@@ -114,6 +114,8 @@ class AlignmentQuality:
     violation_ratio: float = 0.0
     violation_min: float = 0.0
     """The smaller of the two directions' violation ratios (``violation_ratio`` is the larger)."""
+    behind: int = 0
+    """Moving points on reference walls that the two sonars see from opposite sides (not inliers)."""
 
     @property
     def weak_std_m(self) -> float:
@@ -165,32 +167,60 @@ class ConvergenceParams(StageParams):
 
 def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
                      max_range_m: float, inlier_distance_m: float,
-                     visible: np.ndarray | None = None) -> AlignmentQuality:
+                     visible: np.ndarray | None = None, moving_origin: np.ndarray | None = None) -> AlignmentQuality:
     """Measure the fit of already transformed moving points ``moved`` against the reference points.
 
     The inlier share is taken over the *candidates*: the moving points within the reference sonar's
     range and, when ``visible`` is given, that it could have seen (not behind one of its own walls).
+    With the moving sonar's position in the reference frame (``moving_origin``), a moving point on a
+    reference wall that the two sonars see from opposite sides (:func:`seen_from_behind`) is no inlier.
     """
     dist, idx = tree.query(moved, k=1)
     in_range = np.hypot(moved[:, 0], moved[:, 1]) <= max_range_m
     if visible is not None:
         in_range &= visible
     inlier = (dist <= inlier_distance_m) & in_range
+    behind = 0
+    if moving_origin is not None and inlier.any():
+        back = np.zeros(len(moved), dtype=bool)
+        back[inlier] = seen_from_behind(ref_points[idx[inlier]], ref_normals[idx[inlier]], moving_origin)
+        behind = int(back.sum())
+        inlier &= ~back
     n_in = int(inlier.sum())
     if n_in < 3:
-        return AlignmentQuality(n_in, int(in_range.sum()), len(moved), float("inf"), 0.0)
+        return AlignmentQuality(n_in, int(in_range.sum()), len(moved), float("inf"), 0.0, behind=behind)
     nrm = ref_normals[idx[inlier]]
     info = nrm.T @ nrm / n_in
     constraint = float(np.linalg.eigvalsh(info)[0])
     rms = float(np.sqrt(np.mean(dist[inlier] ** 2)))
-    return AlignmentQuality(n_in, int(in_range.sum()), len(moved), rms, constraint)
+    return AlignmentQuality(n_in, int(in_range.sum()), len(moved), rms, constraint, behind=behind)
+
+
+def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.ndarray) -> np.ndarray:
+    """Mask of reference wall points (the reference sonar at the origin) that the moving sonar, at
+    ``moving_origin``, would see from the other side of the wall.
+
+    A sonar hears a wall's face only from the water in front of it: two sonars on opposite sides of a
+    wall's tangent cannot have seen the same face. A wrong match that sets two look-alike chambers side
+    by side lays one chamber's wall onto the other's from behind — every point fits and no wall falls
+    into water, since each sonar's water lies on its own side. Rock between chambers is thicker than the
+    inlier distance, so a right match never pairs the two faces of one wall. Views within
+    ``GRAZING_DEG`` of the wall's plane, where a normal's error could flip the side, are not judged.
+    """
+    least = math.sin(math.radians(GRAZING_DEG))
+    to_ref = -wall
+    to_mov = np.asarray(moving_origin, dtype=np.float64)[None, :] - wall
+    cos_ref = np.einsum("ij,ij->i", to_ref, normals) / np.maximum(np.hypot(to_ref[:, 0], to_ref[:, 1]), 1e-9)
+    cos_mov = np.einsum("ij,ij->i", to_mov, normals) / np.maximum(np.hypot(to_mov[:, 0], to_mov[:, 1]), 1e-9)
+    return (cos_ref * cos_mov < 0) & (np.abs(cos_ref) >= least) & (np.abs(cos_mov) >= least)
 
 
 def hard_limits(quality: AlignmentQuality, limits: ConvergenceThresholds, *, ratio: bool = True) -> str:
     """The reason a fit fails the inlier count, the inlier share (with ``ratio``) or one of the two
     corridor tests (``min_constraint``, ``max_weak_std_m``), or an empty string."""
     if quality.inliers < limits.min_inliers:
-        return f"only {quality.inliers} inlier points (< {limits.min_inliers})"
+        behind = f"; {quality.behind} more on walls the two sonars see from opposite sides" if quality.behind else ""
+        return f"only {quality.inliers} inlier points (< {limits.min_inliers}{behind})"
     if ratio and quality.inlier_ratio < limits.min_inlier_ratio:
         return f"inlier ratio {quality.inlier_ratio:.2f} < {limits.min_inlier_ratio:.2f}"
     if quality.constraint < limits.min_constraint:
@@ -359,7 +389,7 @@ class ReferenceModel:
         moved = transform(src, pose)
         seen = self.free.visible(moved, limits.free_space_margin_m)
         q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
-                             seen)
+                             seen, moving_origin=np.asarray(pose[:2], dtype=np.float64))
         back = transform(self.points, inverse(pose))
         mov_free = FreeSpace(moving)
         mov_tree = cKDTree(src) if len(src) >= 3 else None
@@ -371,11 +401,13 @@ class ReferenceModel:
         ratios = (bad1 / n1 if n1 else 0.0, bad2 / n2 if n2 else 0.0)
         if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
             rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
-                                  mov_free.visible(back, limits.free_space_margin_m))
+                                  mov_free.visible(back, limits.free_space_margin_m),
+                                  moving_origin=np.asarray(inverse(pose)[:2], dtype=np.float64))
             if rq.inlier_ratio < q.inlier_ratio:
                 q = AlignmentQuality(min(q.inliers, rq.inliers), rq.candidates, q.n_points, q.rms_m,
-                                     min(q.constraint, rq.constraint))
-        return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, max(ratios), min(ratios))
+                                     min(q.constraint, rq.constraint), behind=max(q.behind, rq.behind))
+        return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, max(ratios), min(ratios),
+                                q.behind)
 
 
 def rotate(vectors: np.ndarray, angle: float) -> np.ndarray:
