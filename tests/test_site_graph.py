@@ -205,28 +205,47 @@ def test_a_group_with_one_scan_at_the_bridge_level_joins_by_one_loop_closure():
     np.testing.assert_allclose(poses.xy_m[2] - poses.xy_m[0], TRUTH[2] - TRUTH[0], atol=1e-6)
 
 
+def look_alike_join(rooms):
+    """Scans s1, s2 in the first two rooms, s3, s4 in the last two (x = 2, 6, 1, 3 m along a 3 m wide
+    room); group {s3, s4} in its own frame; the wall check and the join that puts s3 1 m west of s1."""
+    from cistern_archive.grid.polygon import polygon_scan
+    from cistern_plugins.site_groups import Graph, WallCheck
+    import gtsam
+
+    xy = [(2.0, 1.5), (6.0, 1.5), (1.0, 1.5), (3.0, 1.5)]
+    scans = [polygon_scan(room, xy[k], 0.0, rng=np.random.default_rng(k), n_beams=200, range_noise_m=0.01)
+             for k, room in enumerate(rooms)]
+    graph = Graph(edges=[], ties=[], group=[0, 0, 2, 2], pose=[gtsam.Pose2(x, y, 0.0) for x, y in xy])
+    graph.pose[2:] = [gtsam.Pose2(0.0, 0.0, 0.0), gtsam.Pose2(2.0, 0.0, 0.0)]
+    return WallCheck(scans, SiteGraphParams()), graph, gtsam.Pose2(-1.0, 0.0, 0.0)
+
+
 def test_a_join_that_puts_walls_into_water_other_scans_saw_is_refused():
     """Group {s3, s4} is a 4 m room; put where a look-alike match would put it, at the near end of the
     8 m room of group {s1, s2}, its far wall crosses the water s1 and s2 saw beyond it. The same join
     with s3 and s4 really in the 8 m room is accepted."""
-    from cistern_archive.grid.polygon import polygon_scan, rectangle
-    from cistern_plugins.site_groups import Graph, WallCheck
-    import gtsam
+    from cistern_archive.grid.polygon import rectangle
 
     long_room, short_room = [rectangle(8.0, 3.0, centre=(4.0, 1.5))], [rectangle(4.0, 3.0, centre=(2.0, 1.5))]
-    xy = [(2.0, 1.5), (6.0, 1.5), (1.0, 1.5), (3.0, 1.5)]
+    check, graph, z = look_alike_join([long_room] * 2 + [short_room] * 2)
+    why = check.conflict(graph, 0, 2, z)
+    assert "1.52 m of wall in a row across the water" in why, why  # the 4 m room's 3 m east wall, in part
+    check, graph, z = look_alike_join([long_room] * 4)
+    assert check.conflict(graph, 0, 2, z) == ""
 
-    def site(rooms):
-        scans = [polygon_scan(room, xy[k], 0.0, rng=np.random.default_rng(k), n_beams=200, range_noise_m=0.01)
-                 for k, room in enumerate(rooms)]
-        graph = Graph(edges=[], ties=[], group=[0, 0, 2, 2], pose=[gtsam.Pose2(x, y, 0.0) for x, y in xy])
-        graph.pose[2:] = [gtsam.Pose2(0.0, 0.0, 0.0), gtsam.Pose2(2.0, 0.0, 0.0)]  # group {s3, s4} in its own frame
-        z = gtsam.Pose2(-1.0, 0.0, 0.0)  # s3 placed 1 m west of s1, where both rooms have their west wall
-        return WallCheck(scans, SiteGraphParams()).conflict(graph, 0, 2, z)
 
-    why = site([long_room] * 2 + [short_room] * 2)
-    assert "free space" in why, why
-    assert site([long_room] * 4) == ""
+def test_the_wall_check_by_shares_alone_refuses_the_same_join():
+    """Without the stretch test (a limit longer than any wall), the median share of wall points in
+    the other scans' free space refuses the same look-alike join."""
+    from dataclasses import replace
+
+    from cistern_archive.grid.polygon import rectangle
+
+    long_room, short_room = [rectangle(8.0, 3.0, centre=(4.0, 1.5))], [rectangle(4.0, 3.0, centre=(2.0, 1.5))]
+    check, graph, z = look_alike_join([long_room] * 2 + [short_room] * 2)
+    check.limits = replace(check.limits, max_violation_run_m=100.0)
+    assert "free space" in check.conflict(graph, 0, 2, z)
+    assert check.conflict(graph, 0, 2, z, shares_too=False) == ""
 
 
 def test_a_break_with_one_unrivalled_estimate_asks_for_the_reverse_match_around_it():

@@ -291,7 +291,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         if best is None:
             break
         members, (i, j, z) = best
-        why = walls.conflict(graph, i, j, z) if tier > 0 else ""
+        why = walls.conflict(graph, i, j, z, shares_too=tier > 0)
         if why:
             for k in members:
                 graph.rejected[(edges[k].i, edges[k].j)] = why

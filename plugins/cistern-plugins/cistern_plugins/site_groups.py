@@ -153,11 +153,16 @@ class WallCheck:
             self.models[k] = ReferenceModel(self.scans[k])
         return self.models[k]
 
-    def conflict(self, graph: Graph, i: int, j: int, z: gtsam.Pose2) -> str:
+    def conflict(self, graph: Graph, i: int, j: int, z: gtsam.Pose2, *, shares_too: bool = True) -> str:
         """Empty when the merge of ``j``'s group into ``i``'s (:func:`_merge`) leaves the walls in place,
-        else the reason, naming the stations of the worst pair."""
+        else the reason, naming the stations of the worst pair. Two tests: no pair of the two groups
+        lays a stretch of wall longer than ``max_violation_run_m`` across the other's water (one
+        chamber's opening onto the other's solid wall, :func:`~cistern_plugins.alignment.longest_run_m`);
+        and, with ``shares_too``, the median violation share stays within ``max_violation_ratio``."""
         offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
         shares: list[tuple[float, int, int]] = []
+        runs: list[tuple[float, int, int]] = []
+        name = [s.station or str(k) for k, s in enumerate(self.scans)]
         for a in graph.members(graph.group[i]):
             for b in graph.members(graph.group[j]):
                 sa, sb = self.scans[a], self.scans[b]
@@ -165,15 +170,19 @@ class WallCheck:
                 if not same_level(sa, sb, self.p) or math.hypot(rel.x(), rel.y()) > min(sa.max_range_m, sb.max_range_m):
                     continue
                 q = self.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), self.limits)
+                runs.append((q.violation_run_m, a, b))
                 if q.inliers >= self.limits.min_inliers:
                     shares.append((q.violation_ratio, a, b))
-        if not shares:
+        run, a, b = max(runs, default=(0.0, -1, -1))
+        if run > self.limits.max_violation_run_m:
+            return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
+                    f"({name[a]} – {name[b]}; at most {self.limits.max_violation_run_m:.2f} m)")
+        if not shares or not shares_too:
             return ""
         median = float(np.median([v for v, _, _ in shares]))
         if median <= self.limits.max_violation_ratio:
             return ""
         worst, a, b = max(shares)
-        name = [s.station or str(k) for k, s in enumerate(self.scans)]
         return (f"joining its groups would put walls into water other scans saw: a median {100 * median:.0f} % "
                 f"of wall points in the other scan's free space over {len(shares)} pairs "
                 f"(worst {name[a]} – {name[b]}, {100 * worst:.0f} %)")
