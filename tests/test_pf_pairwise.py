@@ -273,8 +273,9 @@ def test_partial_overlap_fit_must_respect_free_space():
     def fit(**limits) -> PFParams:
         return PFParams(verify={"fit": limits})
 
-    loose = dict(min_inliers=3, min_inlier_ratio=0.0)
+    loose = dict(min_inliers=3, min_inlier_ratio=0.0, max_violation_run_m=100.0)
     assert fit_check(pair, wrong, fit(**loose, partial_inlier_ratio=0.0)) == ""
+    assert "in a row" in fit_check(pair, wrong, fit(min_inliers=3, min_inlier_ratio=0.0, partial_inlier_ratio=0.0))
     reason = fit_check(pair, wrong, fit(**loose, partial_inlier_ratio=1.0, partial_max_violation=0.0))
     assert "free space" in reason
     assert fit_check(pair, truth, fit(partial_inlier_ratio=1.0)) == ""
