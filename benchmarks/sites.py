@@ -258,6 +258,7 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
         "median_aligned_error_m": float(np.median(aligned)) if len(aligned) else float("nan"),
         "max_aligned_error_m": max_aligned,
         "silent_wrong": bool(build.result.status == "ok" and max_aligned > WRONG_SCAN_M),
+        "wrong_scans": int(sum(e > WRONG_SCAN_M for e in aligned)),
         "eligible_pairs": len(eligible),
         "eligible_pairs_ok": len(good),
         "pairs_ge50": len(ge50),
@@ -283,7 +284,7 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
 def failed_row(record, build, seconds: float) -> dict:
     """The row of a site whose build stopped before its scans were segmented: nothing placed."""
     nan = float("nan")
-    row = {key: 0 for key in ("placed", "placeable", "eligible_pairs", "eligible_pairs_ok", "pairs_ge50", "pairs_ge50_ok",
+    row = {key: 0 for key in ("placed", "placeable", "wrong_scans", "eligible_pairs", "eligible_pairs_ok", "pairs_ge50", "pairs_ge50_ok",
                               "pairs", "pairs_converged", "false_convergences", "false_convergences_no_overlap",
                               "far_pairs", "far_pairs_converged", "cross_level_pairs", "cross_level_converged")}
     row.update({key: nan for key in ("median_position_error_m", "max_position_error_m", "median_aligned_error_m",
@@ -326,6 +327,8 @@ def random_summary(rows: list[dict]) -> dict:
         "max_aligned_error_m": float(np.max(errors)) if errors else float("nan"),
         "silent_wrong_sites": sum(r["silent_wrong"] for r in rows),
         "placeable": sum(r["placeable"] for r in rows),
+        "wrong_sites": sum(r["wrong_scans"] > 0 for r in rows),
+        "wrong_scans": sum(r["wrong_scans"] for r in rows),
         "break_pairs": sum(len(r["break_pairs"]) for r in rows),
         "break_pairs_asked": sum(p["asked"] for r in rows for p in r["break_pairs"]),
         "break_pairs_estimated_right": sum(p["best_error_m"] <= OK_PAIR_M for r in rows for p in r["break_pairs"]),
@@ -443,6 +446,9 @@ def random_main(args) -> int:
           f"{everything['break_pairs_asked']}, an estimate within {OK_PAIR_M:.2f} m "
           f"{everything['break_pairs_estimated_right']}, the truth among the matcher's rival places "
           f"{everything['break_pairs_truth_among_rivals']}")
+    print(f"sites with a placed scan more than {WRONG_SCAN_M:.2f} m off after alignment, whatever their status: "
+          f"{everything['wrong_sites']} ({everything['wrong_scans']} scans; reported ok: "
+          f"{everything['silent_wrong_sites']})")
     print(f"pairs with >=50% overlap rejected: {everything['pairs_ge50_rejected']}, of which "
           f"{everything['pairs_ge50_rejected_correct']} with an estimate within 0.10 m")
     failed = [r["site"] for r in rows if r["status"] == "failed"]
