@@ -12,7 +12,9 @@ smaller eigenvalue of the point-to-line information matrix, per inlier, must rea
 — a straight featureless corridor fails it — and the predicted standard deviation along the weakest
 direction must stay below ``max_weak_std_m``), and is the placement physically possible: a wall point of one scan must not lie
 in the free space the other sonar saw in front of its own echo on that bearing (the free-space
-violation ratio, checked both ways). Two scans of different places can share many near points by
+violation ratio, checked both ways, and no stretch of wall longer than ``max_violation_run_m`` in the
+other's water: :func:`longest_run_m`), and a wall is not shared from behind (:func:`seen_from_behind`:
+two look-alike rooms laid back to back). Two scans of different places can share many near points by
 chance; they rarely avoid each other's free space.
 """
 
@@ -115,7 +117,8 @@ class AlignmentQuality:
     violation_min: float = 0.0
     """The smaller of the two directions' violation ratios (``violation_ratio`` is the larger)."""
     behind: int = 0
-    """Moving points on reference walls that the two sonars see from opposite sides (not inliers)."""
+    """Moving points on reference walls that the two sonars see from opposite sides, left out of the
+    inliers (:data:`BEHIND_SHARE`)."""
     violation_run_m: float = 0.0
     """The longest stretch of one scan's wall (metres along its consecutive wall points) lying in the
     other scan's free space, the larger of the two directions (:func:`longest_run_m`)."""
@@ -204,7 +207,11 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
 
 
 BEHIND_SHARE = 0.25
-"""Share of the inliers seen from opposite sides of their walls from which they count as none."""
+"""Share of the inliers seen from opposite sides of their walls (:func:`seen_from_behind`) from which
+they count as none. At their true poses 596 of the 2,706 same-level pairs of 48 random multi-chamber
+cisterns (seeds 2 and 4 of ``benchmarks/sites.py --random``) have a few such points, at corners where a
+wall's normal is ill-defined; among the pairs that share 25 points or more, 23 reach a quarter. A wall
+laid on another from behind has most of its inliers so."""
 
 
 def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.ndarray) -> np.ndarray:
@@ -215,7 +222,8 @@ def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.nd
     wall's tangent cannot have seen the same face. A wrong match that sets two look-alike chambers side
     by side lays one chamber's wall onto the other's from behind — every point fits and no wall falls
     into water, since each sonar's water lies on its own side. Rock between chambers is thicker than the
-    inlier distance, so a right match never pairs the two faces of one wall. Views within
+    inlier distance, so a right match does not pair the two faces of one wall; only a normal that is
+    wrong, at a corner, makes a right pair look so (:data:`BEHIND_SHARE`). Views within
     ``GRAZING_DEG`` of the wall's plane, where a normal's error could flip the side, are not judged.
     """
     least = math.sin(math.radians(GRAZING_DEG))
@@ -227,8 +235,9 @@ def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.nd
 
 
 def hard_limits(quality: AlignmentQuality, limits: ConvergenceThresholds, *, ratio: bool = True) -> str:
-    """The reason a fit fails the inlier count, the inlier share (with ``ratio``) or one of the two
-    corridor tests (``min_constraint``, ``max_weak_std_m``), or an empty string."""
+    """The reason a fit fails the inlier count, the inlier share (with ``ratio``), one of the two
+    corridor tests (``min_constraint``, ``max_weak_std_m``) or the stretch of wall in the other scan's
+    water (``max_violation_run_m``), or an empty string."""
     if quality.inliers < limits.min_inliers:
         behind = f"; {quality.behind} more on walls the two sonars see from opposite sides" if quality.behind else ""
         return f"only {quality.inliers} inlier points (< {limits.min_inliers}{behind})"
@@ -438,10 +447,10 @@ def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float) -> float:
 
     Noise, a pose a few centimetres off and the corners of openings put scattered points of a right
     match into the other scan's free space; a wrong one lays a whole stretch of wall across the water
-    another sonar saw — one chamber's opening onto the other's solid wall. On the tuning seeds of the
-    random multi-chamber cisterns (``benchmarks/sites.py --random 24 --seed 2`` and ``--seed 4``) no
-    stretch at the true poses exceeded 0.50 m, while 15 of 36 accepted or tentative matches more than
-    0.5 m off had stretches of 0.75–5 m."""
+    another sonar saw — one chamber's opening onto the other's solid wall. On 48 random multi-chamber
+    cisterns of the tuning seeds (2 and 4 of ``benchmarks/sites.py --random``) no pair at its true pose
+    had a stretch longer than 0.51 m, while 15 of 36 converged or tentative matches more than 0.5 m off
+    had 0.75–5 m (``benchmarks/RESULTS.md``, "2026-12-02 (later)")."""
     if len(points) < 2:
         return 0.0
     steps = np.hypot(*np.diff(points, axis=0).T)

@@ -51,11 +51,12 @@ builds a graph over the whole site instead, in three steps.
    match; then confident loop closures, which join two groups of several scans each only when they come
    from two stations on each side (a scan that fell for a look-alike place drags its whole group with
    it, whatever it was matched with; on the tuning seed this refused the two wrong chamber-to-chamber
-   joins and no right one); then sequence links of tentative matches only. A join of the last two
-   tiers must also leave the walls in place (:class:`WallCheck`): placed as the join would place them,
-   the two groups' scans must not see each other's walls in the water they saw (a look-alike chamber
-   fits the scans it was matched with, not the others that see it from elsewhere); a refused join's
-   matches are rejected with that reason. Every edge left over is checked against the merged geometry
+   joins and no right one); then sequence links of tentative matches only. Every join must also leave
+   the walls in place (:class:`WallCheck`): placed as the join would place them, no pair of the two
+   groups' scans may lay a stretch of wall across the water the other saw (one chamber's opening onto
+   a look-alike's solid wall), and in the last two tiers the median share of wall points in the other
+   scans' water must stay small (a look-alike chamber fits the scans it was matched with, not the
+   others that see it from elsewhere); a refused join's matches are rejected with that reason. Every edge left over is checked against the merged geometry
    as before.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
