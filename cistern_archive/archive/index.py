@@ -11,6 +11,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import sqlite3
+import time
 from pathlib import Path
 from typing import Any
 
@@ -112,6 +113,37 @@ class _GuardedConnection(sqlite3.Connection):
         return self._guard(super().executescript, *args)
 
 
+WAL_BUDGET_S = 30.0
+"""How long :func:`use_wal` keeps trying to turn a new index to write-ahead logging."""
+
+
+def use_wal(db: sqlite3.Connection, path: Path, budget_s: float = WAL_BUDGET_S) -> None:
+    """Put the index in write-ahead-log mode (a persistent property of the file).
+
+    Converting the journal needs exclusive access, and SQLite does not run its busy handler for that
+    pragma: two processes opening a new, shared archive at once get "database is locked" at once,
+    whatever the connection's timeout. So the mode is read first (after the first open there is nothing
+    to convert, and no lock is taken), and the conversion is retried with backoff within ``budget_s``;
+    another process finishing it meanwhile counts as done.
+    """
+    deadline = time.monotonic() + budget_s
+    pause = 0.01
+    while True:
+        try:
+            if db.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal":
+                return
+            if db.execute("PRAGMA journal_mode=WAL").fetchone()[0].lower() == "wal":
+                return
+        except EnvironmentProblem as exc:
+            if "locked" not in str(exc) or time.monotonic() >= deadline:
+                raise
+        else:
+            if time.monotonic() >= deadline:
+                raise EnvironmentProblem(f"{path}: archive index: cannot switch to write-ahead logging")
+        time.sleep(pause)
+        pause = min(2 * pause, 0.5)
+
+
 class Index:
     """A connection to ``index.sqlite``; use as a context manager or call :meth:`close`.
 
@@ -129,7 +161,7 @@ class Index:
             raise EnvironmentProblem(f"{self.path}: cannot open the archive index: {exc}") from None
         self.db.path = str(self.path)
         self.db.row_factory = sqlite3.Row
-        self.db.execute("PRAGMA journal_mode=WAL")
+        use_wal(self.db, self.path)
         self.db.execute("PRAGMA synchronous=NORMAL")
         self.db.execute("PRAGMA foreign_keys=ON")
         self.db.executescript(SCHEMA)
