@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 
+from cistern_archive.core.scan import RangeScan
 from cistern_archive.testing import simulated_pair
 from cistern_plugins.registration import scan_points
 from cistern_plugins.correlative import CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound
@@ -54,7 +55,7 @@ def test_ridge_is_not_a_rival_but_a_separate_peak_is():
     assert valley(pyr, seg, angles, best, across) < 0.2
 
 
-def _corridor_scan(x0: float) -> "RangeScan":
+def _corridor_scan(x0: float) -> RangeScan:
     """A station at ``x = x0`` in a long corridor (walls at y = ±1 m, a cross wall at x = 8 m): seen
     from 5 m off, only the side walls are in range, so along the corridor every shift fits."""
     from cistern_archive.core.scan import RangeScan
