@@ -191,11 +191,11 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
     inlier = (dist <= inlier_distance_m) & in_range
     behind = 0
     if moving_origin is not None and inlier.any():
-        back = np.zeros(len(moved), dtype=bool)
-        back[inlier] = seen_from_behind(ref_points[idx[inlier]], ref_normals[idx[inlier]], moving_origin)
-        if back.sum() >= BEHIND_SHARE * inlier.sum():
-            behind = int(back.sum())
-            inlier &= ~back
+        hits = np.flatnonzero(inlier)
+        back = hits[seen_from_behind(ref_points[idx[hits]], ref_normals[idx[hits]], moving_origin)]
+        if len(back) >= BEHIND_SHARE * len(hits):
+            behind = len(back)
+            inlier[back] = False
     n_in = int(inlier.sum())
     if n_in < 3:
         return AlignmentQuality(n_in, int(in_range.sum()), len(moved), float("inf"), 0.0, behind=behind)

@@ -153,6 +153,10 @@ class WallCheck:
             self.models[k] = ReferenceModel(self.scans[k])
         return self.models[k]
 
+    def label(self, k: int) -> str:
+        """Scan ``k``'s station label (its index when it has none)."""
+        return self.scans[k].station or str(k)
+
     def conflict(self, graph: Graph, i: int, j: int, z: gtsam.Pose2, *, shares_too: bool = True) -> str:
         """Empty when the merge of ``j``'s group into ``i``'s (:func:`_merge`) leaves the walls in place,
         else the reason, naming the stations of the worst pair. Two tests: no pair of the two groups
@@ -162,7 +166,6 @@ class WallCheck:
         offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
         shares: list[tuple[float, int, int]] = []
         runs: list[tuple[float, int, int]] = []
-        name = [s.station or str(k) for k, s in enumerate(self.scans)]
         for a in graph.members(graph.group[i]):
             for b in graph.members(graph.group[j]):
                 sa, sb = self.scans[a], self.scans[b]
@@ -176,7 +179,7 @@ class WallCheck:
         run, a, b = max(runs, default=(0.0, -1, -1))
         if run > self.limits.max_violation_run_m:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
-                    f"({name[a]} – {name[b]}; at most {self.limits.max_violation_run_m:.2f} m)")
+                    f"({self.label(a)} – {self.label(b)}; at most {self.limits.max_violation_run_m:.2f} m)")
         if not shares or not shares_too:
             return ""
         median = float(np.median([v for v, _, _ in shares]))
@@ -185,7 +188,7 @@ class WallCheck:
         worst, a, b = max(shares)
         return (f"joining its groups would put walls into water other scans saw: a median {100 * median:.0f} % "
                 f"of wall points in the other scan's free space over {len(shares)} pairs "
-                f"(worst {name[a]} – {name[b]}, {100 * worst:.0f} %)")
+                f"(worst {self.label(a)} – {self.label(b)}, {100 * worst:.0f} %)")
 
 
 def several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int, p: SiteGraphParams) -> bool:
