@@ -208,10 +208,10 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
 
 BEHIND_SHARE = 0.25
 """Share of the inliers seen from opposite sides of their walls (:func:`seen_from_behind`) from which
-they count as none. At their true poses 596 of the 2,706 same-level pairs of 48 random multi-chamber
-cisterns (seeds 2 and 4 of ``benchmarks/sites.py --random``) have a few such points, at corners where a
-wall's normal is ill-defined; among the pairs that share 25 points or more, 23 reach a quarter. A wall
-laid on another from behind has most of its inliers so."""
+they count as none. At their true poses, 149 of the 2,706 same-level pairs of 48 random multi-chamber
+cisterns (``benchmarks/wall_tests.py``) have a quarter or more so, at corners where a wall's normal is
+ill-defined; only 17 of them share 25 points or more. A wall laid on another from behind has most of its
+inliers so."""
 
 
 def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.ndarray) -> np.ndarray:
@@ -448,9 +448,8 @@ def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float) -> float:
     Noise, a pose a few centimetres off and the corners of openings put scattered points of a right
     match into the other scan's free space; a wrong one lays a whole stretch of wall across the water
     another sonar saw — one chamber's opening onto the other's solid wall. On 48 random multi-chamber
-    cisterns of the tuning seeds (2 and 4 of ``benchmarks/sites.py --random``) no pair at its true pose
-    had a stretch longer than 0.51 m, while 15 of 36 converged or tentative matches more than 0.5 m off
-    had 0.75–5 m (``benchmarks/RESULTS.md``, "2026-12-02 (later)")."""
+    cisterns (``benchmarks/wall_tests.py``) no pair at its true pose and no right join had a stretch
+    longer than 0.51 m; a wrong join that set a chamber's opening on a solid wall had 1.76 m."""
     if len(points) < 2:
         return 0.0
     steps = np.hypot(*np.diff(points, axis=0).T)

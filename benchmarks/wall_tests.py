@@ -1,0 +1,168 @@
+"""How the two physical tests of the verification separate right placements from wrong ones.
+
+The tests (:mod:`cistern_plugins.alignment`): a wall seen from its two sides is not one wall
+(:func:`~cistern_plugins.alignment.seen_from_behind`, applied from ``BEHIND_SHARE`` of the inliers),
+and no stretch of wall longer than ``max_violation_run_m`` may lie in the water another sonar saw
+(:func:`~cistern_plugins.alignment.longest_run_m`). On random multi-chamber cisterns (the generator of
+``benchmarks/sites.py --random``), each built by the runner with the default pipeline, this reports:
+
+* ``truth_pairs``: every pair of one depth level within sonar range, assessed at its true relative pose
+  (:meth:`~cistern_plugins.alignment.ReferenceModel.assess_pair`): the longest stretch, and how many
+  pairs have points seen from behind, a quarter or more of them, and so with 25 points or more;
+* ``matches``: every converged or tentative match, right (within 0.10 m) or wrong (more than 0.5 m
+  off), with the stretch at its estimate;
+* ``joins``: every join ``site-graph``'s wall check judged, at the poses it judged it, right (every pair
+  within 0.3 m of the truth) or wrong (a pair more than 1 m off), with its longest stretch. The wall
+  check is observed, not changed: each call is recorded and passed on.
+
+Usage::
+
+    .venv/bin/python benchmarks/wall_tests.py [--random 24] [--seeds 2,4] [--workers 2] [--json]
+
+The numbers in ``benchmarks/RESULTS.md`` ("2026-12-02 (later)") come from the defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from itertools import permutations
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import cistern_plugins.site_groups as site_groups  # noqa: E402
+from cistern_archive.catalog.loader import load_record  # noqa: E402
+from cistern_archive.pipeline.runner import build_site  # noqa: E402
+from cistern_archive.simulation.chambers import random_cisterns, simulate_into, write_specs  # noqa: E402
+from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel  # noqa: E402
+from sites import OK_PAIR_M, SiteTruth  # noqa: E402
+
+WRONG_MATCH_M = 0.5
+RIGHT_JOIN_M = 0.3
+WRONG_JOIN_M = 1.0
+
+
+class JoinRecorder:
+    """Records every call of ``WallCheck.conflict`` (the pairs it assesses and their poses)."""
+
+    def __init__(self) -> None:
+        self.calls: list[list[tuple[float, int, int, float, float]]] = []
+        self.original = site_groups.WallCheck.conflict
+        recorder = self
+
+        def conflict(check, graph, i, j, z, **kwargs):
+            offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+            pairs = []
+            for a in graph.members(graph.group[i]):
+                for b in graph.members(graph.group[j]):
+                    rel = graph.pose[a].between(offset.compose(graph.pose[b]))
+                    sa, sb = check.scans[a], check.scans[b]
+                    if site_groups.same_level(sa, sb, check.p) and \
+                            math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
+                        q = check.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), check.limits)
+                        pairs.append((q.violation_run_m, a, b, rel.x(), rel.y()))
+            recorder.calls.append(pairs)
+            return recorder.original(check, graph, i, j, z, **kwargs)
+
+        site_groups.WallCheck.conflict = conflict
+
+
+def truth_pairs(scans, truth: SiteTruth) -> list[tuple[float, int, int]]:
+    """(longest stretch, inliers, points seen from behind) of every pair at its true pose."""
+    limits = ConvergenceThresholds()
+    models = [ReferenceModel(s) for s in scans]
+    out = []
+    for a, b in permutations(range(len(scans)), 2):
+        if truth.cross_level(a, b) or np.hypot(*(truth.xy[b] - truth.xy[a])) > min(scans[a].max_range_m, scans[b].max_range_m):
+            continue
+        q = models[a].assess_pair(scans[b], truth.true_pose(a, b), limits)
+        out.append((q.violation_run_m, q.inliers, q.behind))
+    return out
+
+
+def one_site(job: tuple[int, int]) -> dict:
+    """Simulate, build and measure site ``k`` of seed ``seed``."""
+    seed, k = job
+    recorder = JoinRecorder()
+    cistern = random_cisterns(k + 1, seed)[k]
+    with tempfile.TemporaryDirectory(prefix="wall-tests-") as tmp:
+        root = Path(tmp)
+        loaded = load_record(simulate_into(write_specs([cistern], root)[0], root), root)
+        build = build_site(loaded)
+        scans = build.range_scans
+        truth = SiteTruth(loaded.record, scans, root)
+        limits = ConvergenceThresholds()
+        models: dict[int, ReferenceModel] = {}
+        matches = []
+        for m in build.matches:
+            if not (m.converged or m.tentative) or not math.isfinite(m.dx_m):
+                continue
+            model = models.setdefault(m.i, ReferenceModel(scans[m.i]))
+            q = model.assess_pair(scans[m.j], np.array([m.dx_m, m.dy_m, m.dyaw_rad]), limits)
+            matches.append((truth.pair_error(m), q.violation_run_m))
+        joins = []
+        for pairs in recorder.calls:
+            if pairs:
+                errors = [truth.displacement_error(a, b, x, y) for _, a, b, x, y in pairs]
+                joins.append((max(errors), max(p[0] for p in pairs)))
+        return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins}
+
+
+def summary(rows: list[dict]) -> dict:
+    truth = np.array([t for r in rows for t in r["truth"]], dtype=float).reshape(-1, 3)
+    matches = np.array([m for r in rows for m in r["matches"]], dtype=float).reshape(-1, 2)
+    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 2)
+    limit = ConvergenceThresholds().max_violation_run_m
+    share = truth[:, 2] / np.maximum(truth[:, 1] + truth[:, 2], 1)
+    right, wrong = matches[matches[:, 0] <= OK_PAIR_M], matches[matches[:, 0] > WRONG_MATCH_M]
+    right_joins, wrong_joins = joins[joins[:, 0] <= RIGHT_JOIN_M], joins[joins[:, 0] > WRONG_JOIN_M]
+
+    def top(values: np.ndarray) -> float | None:
+        return round(float(values.max()), 3) if len(values) else None
+
+    return {
+        "truth_pairs": {"n": len(truth), "max_run_m": top(truth[:, 0]),
+                        "q999_run_m": round(float(np.quantile(truth[:, 0], 0.999)), 3) if len(truth) else None,
+                        "over_limit": int((truth[:, 0] > limit).sum()), "with_points_behind": int((truth[:, 2] > 0).sum()),
+                        "behind_quarter": int((share >= 0.25).sum()),
+                        "behind_quarter_25_points": int(((share >= 0.25) & (truth[:, 1] + truth[:, 2] >= 25)).sum())},
+        "matches": {"right": len(right), "right_max_run_m": top(right[:, 1]), "wrong": len(wrong),
+                    "wrong_median_run_m": round(float(np.median(wrong[:, 1])), 3) if len(wrong) else None,
+                    "wrong_over_limit": int((wrong[:, 1] > limit).sum()), "wrong_max_run_m": top(wrong[:, 1])},
+        "joins": {"right": len(right_joins), "right_max_run_m": top(right_joins[:, 1]), "wrong": len(wrong_joins),
+                  "wrong_runs_m": sorted(round(float(v), 2) for v in wrong_joins[:, 1])},
+        "limit_m": limit,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--random", type=int, default=24, help="sites per seed")
+    parser.add_argument("--seeds", default="2,4", help="comma-separated seeds of the site generator")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
+    args = parser.parse_args(argv)
+    jobs = [(int(s), k) for s in args.seeds.split(",") for k in range(args.random)]
+    if args.workers > 1:
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            rows = list(pool.map(one_site, jobs))
+    else:
+        rows = [one_site(job) for job in jobs]
+    figures = summary(rows)
+    for key, value in figures.items():
+        print(f"{key}: {value}")
+    if args.json:
+        print(json.dumps(figures))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
