@@ -282,13 +282,18 @@ class FreeSpace:
     the *nearest* echo of every beam whose cone covers that bearing: free space eroded by the beam
     cone. Without this, correct matches of scans that look through an opening into the next chamber
     put 10–40 % of their wall points in each other's "free" space.
+
+    A beam with no echo says nothing by default. With ``open_range_m`` it saw water out to that range
+    (a wall within the sonar's range would have answered), as an occupancy grid reads it.
     """
 
-    def __init__(self, scan: RangeScan, *, cone: bool = True):
+    def __init__(self, scan: RangeScan, *, cone: bool = True, open_range_m: float | None = None):
         angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
         order = np.argsort(angles, kind="stable")
         self.angles = angles[order]
         ranges = scan.ranges_m[order]
+        if open_range_m is not None:  # a beam that heard no wall saw water out to open_range_m
+            ranges = np.where(np.isfinite(ranges), ranges, open_range_m)
         step = 2 * np.pi / max(len(angles), 1)
         self.tolerance_rad = 1.5 * step
         half_cone = 0.5 * float(scan.beam_width_rad) if cone else 0.0

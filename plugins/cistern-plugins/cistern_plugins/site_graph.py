@@ -83,12 +83,14 @@ from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, Mat
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated
 from cistern_plugins.factor_graph import spanning_tree
+from cistern_plugins.group_fit import GroupFitSettings
 from cistern_plugins.site_groups import (
     Graph,
     WallCheck,
     best_cluster,
     close_enough,
     cycle_support,
+    join_by_fit,
     largest_group,
     merge_groups,
     same_level,
@@ -116,6 +118,21 @@ class SiteGraphParams(GraphParams):
     sequence_confidence: float = Field(0.5, ge=0, le=1, description="a pair of consecutive stations whose two "
                                        "matches agree joins two groups when the more confident of the two has "
                                        "at least this confidence (step 2 of the module docstring)")
+    group_fit: bool = Field(True, description="join the groups no match could join by fitting them as wholes "
+                            "(step 2 of the module docstring, cistern_plugins.group_fit)")
+    group_min_score: float = Field(20.0, ge=0, description="a group fit joins only with at least this score "
+                                   "(cells of 0.1 m of agreeing wall, both ways)")
+    group_ambiguity_ratio: float = Field(0.6, gt=0, le=1, description="a group fit joins only when no place "
+                                         "0.5 m or more away scores more than this share of the best")
+    group_free_penalty: float = Field(5.0, ge=0, description="what a wall point in the other group's water "
+                                      "costs, against 1 for an agreeing one")
+    group_yaw_window_deg: float = Field(6.0, ge=0, le=45, description="heading window of a group fit "
+                                        "(three times a Micron-class compass's 2° noise)")
+
+    def group_settings(self) -> GroupFitSettings:
+        """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""
+        return GroupFitSettings(min_score=self.group_min_score, ambiguity_ratio=self.group_ambiguity_ratio,
+                                free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg)
 
 
 class SiteGraphLocalizer(GuidedLocalizer):
@@ -301,6 +318,8 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         merge_groups(graph, i, j, z)
         graph.edges += [edges[k] for k in members]
         pending = [k for k in pending if k not in members]
+    if p.group_fit:
+        graph.edges += join_by_fit(graph, scans, walls, p)
     for k in pending:
         e = edges[k]
         if graph.group[e.i] != graph.group[e.j]:

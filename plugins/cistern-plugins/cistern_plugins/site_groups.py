@@ -14,8 +14,10 @@ import numpy as np
 
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
-from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
+from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel, rotate
 from cistern_plugins.factor_graph import Edge
+from cistern_plugins.group_fit import Cloud, FitCache, GroupFit, accept, fit_covariance, fit_groups, pose_key, \
+    scans_digest
 
 if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
@@ -38,6 +40,8 @@ class Graph:
     group: list[int]
     pose: list[gtsam.Pose2]
     rejected: dict[tuple[int, int], str] = field(default_factory=dict)
+    unjoined: dict[int, str] = field(default_factory=dict)
+    """Why the group fit did not join a scan's group to the reference's (by scan)."""
 
     def members(self, g: int) -> list[int]:
         return [k for k, h in enumerate(self.group) if h == g]
@@ -230,6 +234,89 @@ def largest_group(graph: Graph) -> int:
     return max(sizes, key=lambda g: (sizes[g], -min(graph.members(g))))
 
 
+FITS = FitCache()
+"""Group fits already computed (site-graph solves the same groups again in every round)."""
+
+
+def pose_array(pose: gtsam.Pose2) -> np.ndarray:
+    return np.array([pose.x(), pose.y(), pose.theta()])
+
+
+def level_members(graph: Graph, scans: Sequence[RangeScan], g: int, depth_of: RangeScan, p: SiteGraphParams) -> list[int]:
+    """The scans of group ``g`` at the depth level of scan ``depth_of``."""
+    return [k for k in graph.members(g) if same_level(scans[k], depth_of, p)]
+
+
+def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[int], p: SiteGraphParams,
+              digest: str) -> tuple[GroupFit | None, Cloud, Cloud]:
+    """The fit of the scans ``b`` (one group) in the frame of the scans ``a`` (another), cached."""
+    cloud_a = Cloud([scans[k] for k in a], [pose_array(graph.pose[k]) for k in a])
+    cloud_b = Cloud([scans[k] for k in b], [pose_array(graph.pose[k]) for k in b])
+    key = (digest, tuple(a), pose_key([pose_array(graph.pose[k]) for k in a]),
+           tuple(b), pose_key([pose_array(graph.pose[k]) for k in b]), p.group_settings())
+    return FITS.get(key, lambda: fit_groups(cloud_a, cloud_b, p.group_settings())), cloud_a, cloud_b
+
+
+def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit, cloud_a: Cloud, cloud_b: Cloud) -> Edge:
+    """The fit as an edge between the two scans of the groups that lie nearest each other once placed,
+    with the covariance of the fit's point-to-line inliers turned into that edge's frame."""
+    t = gtsam.Pose2(*fit.pose)
+    placed = {k: t.compose(graph.pose[k]) for k in b}
+    i, j = min(((i, j) for i in a for j in b),
+               key=lambda ij: math.hypot(graph.pose[ij[0]].x() - placed[ij[1]].x(), graph.pose[ij[0]].y() - placed[ij[1]].y()))
+    z = graph.pose[i].between(placed[j])
+    pivot = np.array([placed[j].x(), placed[j].y()])
+    cov = fit_covariance(cloud_a, cloud_b, np.array([*(fit.pose[:2]), fit.pose[2]]), pivot=pivot)
+    turn = np.eye(3)
+    turn[:2, :2] = rotate(np.eye(2), -graph.pose[i].theta())
+    return Edge(i, j, pose_array(z), turn @ cov @ turn.T)
+
+
+def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams) -> list[Edge]:
+    """Join groups that no match could join by fitting them as wholes (:mod:`cistern_plugins.group_fit`):
+    each round, every pair of groups at one depth level is fitted and the clearest accepted fit that
+    passes the wall check merges its two groups; until no fit joins two groups. Returns the edges added
+    (one per join); the reasons of the fits refused are kept in ``graph.unjoined`` for every scan
+    outside the largest group."""
+    digest = scans_digest(scans)
+    added: list[Edge] = []
+    while True:
+        groups = sorted(set(graph.group))
+        if len(groups) < 2:
+            return added
+        candidates = []
+        for x, ga in enumerate(groups):
+            for gb in groups[x + 1:]:
+                big, small = (ga, gb) if len(graph.members(ga)) >= len(graph.members(gb)) else (gb, ga)
+                probe = graph.members(small)[0]
+                a, b = level_members(graph, scans, big, scans[probe], p), level_members(graph, scans, small, scans[probe], p)
+                if not a or not b:
+                    continue
+                fit, cloud_a, cloud_b = group_fit(scans, graph, a, b, p, digest)
+                why = accept(fit, p.group_settings())
+                if why:
+                    for k in graph.members(small):
+                        graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group: {why}")
+                    continue
+                candidates.append((fit.score, a, b, fit, cloud_a, cloud_b))
+        joined = False
+        for _, a, b, fit, cloud_a, cloud_b in sorted(candidates, key=lambda c: -c[0]):
+            edge = group_edge(graph, a, b, fit, cloud_a, cloud_b)
+            why = walls.conflict(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
+            if why:
+                for k in b:
+                    graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group, but {why}")
+                continue
+            merge_groups(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
+            for k in graph.members(graph.group[edge.i]):
+                graph.unjoined.pop(k, None)
+            added.append(edge)
+            joined = True
+            break
+        if not joined:
+            return added
+
+
 def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[MatchResult], labels: Sequence[str]) -> str:
     """Why scan ``k`` is not placed, naming stations: its matches with the placed part of the site and
     what became of each (the first three)."""
@@ -247,5 +334,7 @@ def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[Matc
         else:
             why = m.reason or "not converged"
         notes.append(f"{pair}: {why}")
+    if k in graph.unjoined:
+        notes.insert(0, graph.unjoined[k])
     detail = "; ".join(notes[:3]) + (f"; and {len(notes) - 3} more" if len(notes) > 3 else "")
     return f"no consistent chain of matches to {target}" + (f" ({detail})" if detail else " (no pair was matched)")

@@ -1,0 +1,420 @@
+"""Where one group of placed scans lies in another's frame: a global, two-sided search over the walls
+and the water both groups saw (site-graph's join across a break of the survey's chain).
+
+A station in a tunnel or at its mouth shares only a few metres of wall with any single station of the
+next chamber, too little for a pair-wise match to tell the right place from a look-alike one. The
+scans already joined on each side of the break see much more together: every wall of their chamber
+and, as important, all the water in it. This module matches the two groups as wholes, as a SLAM
+system matches a scan against a submap instead of against its last scan (Hess et al., ICRA 2016), with
+a score that uses both kinds of evidence both ways:
+
+* **walls that agree**: a wall point of one group on a wall of the other, *seen from the same side*
+  (each point carries the normal of its wall turned towards the sonar that heard it; a wall is heard
+  only from the water in front of it, so two look-alike chambers laid back to back share no wall);
+* **walls in water**: a wall point of one group where a sonar of the other saw open water (its free
+  space, :class:`~cistern_plugins.alignment.FreeSpace`) costs ``free_penalty`` times what an agreeing
+  point gains. Such a conflict is near impossible when the placement is right, so it must outweigh
+  agreement: with an even trade, one chamber laid inside another wins on the walls it happens to share.
+
+The score of placing group B by ``T`` in group A's frame is::
+
+    S(T) = sum_{b in B} L_A(T b) + sum_{a in A} L_B(T^-1 a)
+
+over the occupied cells of each group (a wall seen by several stations counts once), with ``L_G`` the
+likelihood field of group G's walls of matching orientation, ``exp(-d^2 / 2 sigma^2)``, minus
+``free_penalty`` in G's free space and zero in space G never saw. For every yaw of the window both sums
+are cross-correlations over all translations at once (FFT), as in the correlative matching of Olson
+(ICRA 2009) with the second, reverse sum added; the best pose is then refined by a direct local search
+of the same score on a grid twice as fine.
+
+A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
+cells of wall, about ``cell_m`` of wall each) and the best pose farther than ``separation_m`` away
+scores at most ``ambiguity_ratio`` of it. site-graph then puts the join to its own wall check (no
+stretch of wall across water, walls not in the water of the other scans) before it merges the groups.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft, ndimage
+from scipy.spatial import cKDTree
+
+from cistern_archive.core.scan import RangeScan
+from cistern_plugins.alignment import (GRAZING_DEG, FreeSpace, compose, covariance_from_fit, estimate_normals, point_to_line_step, rotate,
+                                      scan_points, transform)
+
+ORIENTATIONS = 8
+"""Wall orientations are binned in eighths of a turn; a point agrees with walls of its own bin and the
+two beside it (normals within 67.5°), so two sides of one wall never agree."""
+FREE_MARGIN_M = 0.3
+"""Free space ends this far in front of a sonar's echo (as the correlative matcher's penalty does)."""
+OPEN_RANGE_SHARE = 0.75
+"""A beam that heard no wall saw water out to this share of the sonar's range: beyond it, the last
+decimetres of the range hold no detections (the shadow test needs water behind a wall)."""
+BORDER_M = 1.0
+STATION_RADIUS_M = 0.3
+"""No wall lies this close to a station: the vehicle floated there."""
+POLISH_TOLERANCE = 1.0
+"""The point-to-line polish is kept unless it loses more than this (cells of wall) of the score."""
+
+
+@dataclass(frozen=True)
+class GroupFitSettings:
+    """The search's settings (site-graph's ``group_*`` parameters)."""
+
+    cell_m: float = 0.1
+    sigma_m: float = 0.1
+    yaw_window_deg: float = 6.0
+    yaw_step_deg: float = 1.0
+    free_penalty: float = 5.0
+    min_score: float = 20.0
+    ambiguity_ratio: float = 0.6
+    separation_m: float = 0.5
+
+
+@dataclass(frozen=True)
+class GroupFit:
+    """The best placement of group B in group A's frame and its rival.
+
+    Attributes
+    ----------
+    pose : ndarray, shape (3,)
+        ``(x, y, theta)``: B's frame in A's frame (``q_A = R(theta) q_B + (x, y)``).
+    score : float
+        ``S`` at the refined pose, in coarse cells (module docstring).
+    rival : float
+        The best coarse score of a pose farther than ``separation_m`` from the best.
+    best_coarse : float
+        The best coarse score (the rival's yardstick).
+    """
+
+    pose: np.ndarray
+    score: float
+    rival: float
+    best_coarse: float
+
+
+class Cloud:
+    """The walls and the water of a set of scans placed in one frame."""
+
+    def __init__(self, scans: Sequence[RangeScan], poses: Sequence[np.ndarray]):
+        points, normals = [], []
+        self.frees: list[tuple[FreeSpace, np.ndarray]] = []
+        for scan, pose in zip(scans, poses):
+            p = scan_points(scan)
+            n = facing_normals(p)
+            points.append(transform(p, pose))
+            normals.append(rotate(n, pose[2]) if len(n) else n)
+            free = FreeSpace(scan, open_range_m=OPEN_RANGE_SHARE * float(scan.max_range_m))
+            self.frees.append((free, np.asarray(pose, dtype=np.float64)))
+        self.points = np.vstack(points) if points else np.zeros((0, 2))
+        self.normals = np.vstack(normals) if normals else np.zeros((0, 2))
+        self.stations = np.array([pose[:2] for pose in poses], dtype=np.float64).reshape(-1, 2)
+
+    def in_free_space(self, xy: np.ndarray, turn: float = 0.0) -> np.ndarray:
+        """Per orientation bin, the mask of points (this cloud's frame) that one of its sonars saw empty
+        and would have heard a wall of that orientation at: a ray within ``GRAZING_DEG`` of a wall's
+        plane may pass it unheard (as :meth:`FreeSpace.violations` skips such walls; any normal of the
+        bin, half a bin from its centre, counts), shape (K, N). The
+        bins are those of a frame turned by ``turn`` from this cloud's. Within ``STATION_RADIUS_M`` of a
+        station every orientation counts: no wall stands where the vehicle floated."""
+        out = np.zeros((ORIENTATIONS, len(xy)), dtype=bool)
+        centres = (np.arange(ORIENTATIONS) + 0.5) * 2 * np.pi / ORIENTATIONS - turn
+        normals = np.column_stack([np.cos(centres), np.sin(centres)])
+        for free, pose in self.frees:
+            rel = xy - pose[:2]
+            out[:, np.hypot(rel[:, 0], rel[:, 1]) < STATION_RADIUS_M] = True
+            seen = free.in_free_space(rotate(rel, -pose[2]), FREE_MARGIN_M)
+            if not seen.any():
+                continue
+            rays = rel[seen] / np.maximum(np.hypot(rel[seen, 0], rel[seen, 1]), 1e-9)[:, None]
+            out[:, seen] |= np.abs(normals @ rays.T) >= math.sin(math.radians(GRAZING_DEG + 180.0 / ORIENTATIONS))
+        return out
+
+
+def facing_normals(points: np.ndarray) -> np.ndarray:
+    """Unit wall normals of a scan's points (relative to its sonar), turned towards the sonar."""
+    if len(points) < 3:
+        return np.zeros((len(points), 2))
+    normals = estimate_normals(points, cKDTree(points))
+    away = np.einsum("ij,ij->i", normals, points) > 0
+    normals[away] *= -1
+    return normals
+
+
+def orientation_bins(normals: np.ndarray) -> np.ndarray:
+    """The orientation bin (0 .. ORIENTATIONS - 1) of each normal."""
+    angle = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), 2 * np.pi)
+    return np.floor(angle / (2 * np.pi / ORIENTATIONS)).astype(np.int64) % ORIENTATIONS
+
+
+class Raster:
+    """A cloud rasterised on a grid of one frame: occupied cells per orientation bin, and per bin the
+    likelihood field of the walls it agrees with, minus the free-space penalty."""
+
+    def __init__(self, cloud: Cloud, lo: np.ndarray, shape: tuple[int, int], cell_m: float, sigma_m: float,
+                 penalty: float, rotation: float = 0.0):
+        self.lo, self.shape, self.cell = np.asarray(lo, dtype=np.float64), shape, cell_m
+        points, normals = cloud.points, cloud.normals
+        if rotation:
+            points, normals = rotate(points, rotation), rotate(normals, rotation)
+        cells = np.floor((points - self.lo) / cell_m).astype(np.int64)
+        inside = (cells >= 0).all(axis=1) & (cells[:, 0] < shape[1]) & (cells[:, 1] < shape[0])
+        cells, bins = cells[inside], orientation_bins(normals[inside])
+        self.occupied = np.zeros((ORIENTATIONS, *shape), dtype=np.float64)
+        self.occupied[bins, cells[:, 1], cells[:, 0]] = 1.0
+        rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+        centres = np.column_stack([cols.ravel(), rows.ravel()]) * cell_m + self.lo + cell_m / 2
+        free = cloud.in_free_space(rotate(centres, -rotation) if rotation else centres, rotation)
+        free = free.reshape(ORIENTATIONS, *shape)
+        self.field = np.zeros((ORIENTATIONS, *shape), dtype=np.float64)
+        for k in range(ORIENTATIONS):
+            near = self.occupied[[(k - 1) % ORIENTATIONS, k, (k + 1) % ORIENTATIONS]].any(axis=0)
+            if near.any():
+                dist = ndimage.distance_transform_edt(~near) * cell_m
+                self.field[k] = np.exp(-0.5 * (dist / sigma_m) ** 2)
+            self.field[k][free[k]] -= penalty
+
+    def sample(self, points: np.ndarray, bins: np.ndarray) -> np.ndarray:
+        """The field of each point's bin at the point, interpolated bilinearly (0 outside the grid)."""
+        u = (points - self.lo) / self.cell - 0.5
+        base = np.floor(u).astype(np.int64)
+        frac = u - base
+        out = np.zeros(u.shape[:-1])
+        for dc, dr in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            cols, rows = base[..., 0] + dc, base[..., 1] + dr
+            inside = (cols >= 0) & (rows >= 0) & (cols < self.shape[1]) & (rows < self.shape[0])
+            weight = (frac[..., 0] if dc else 1 - frac[..., 0]) * (frac[..., 1] if dr else 1 - frac[..., 1])
+            values = self.field[np.broadcast_to(bins, rows.shape), np.where(inside, rows, 0), np.where(inside, cols, 0)]
+            out += np.where(inside, weight * values, 0.0)
+        return out
+
+
+def bounds(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, tuple[int, int]]:
+    """Grid origin and shape (rows, cols) covering points with a border."""
+    lo = points.min(axis=0) - BORDER_M
+    hi = points.max(axis=0) + BORDER_M
+    size = np.ceil((hi - lo) / cell_m).astype(np.int64) + 1
+    return lo, (int(size[1]), int(size[0]))
+
+
+def cell_centres(raster: Raster) -> tuple[np.ndarray, np.ndarray]:
+    """Centres of the occupied cells of a raster (its frame) and their bins."""
+    bins, rows, cols = np.nonzero(raster.occupied)
+    return np.column_stack([cols, rows]) * raster.cell + raster.lo + raster.cell / 2, bins
+
+
+def coarse_scores(a: Cloud, b: Cloud, s: GroupFitSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                  tuple[int, int]]:
+    """``S`` on the coarse grid of every yaw of the window: (scores (Y, H, W), yaws, A's grid origin,
+    B's grid origin, A's grid shape); translation index ``k`` is ``t = k * cell + lo_A - lo_B``, with
+    ``k`` from ``-(B's side - 1)`` to A's shape less one, negative ones wrapped."""
+    lo_a, shape_a = bounds(a.points, s.cell_m)
+    reach = float(np.hypot(b.points[:, 0], b.points[:, 1]).max()) + BORDER_M
+    lo_b = np.array([-reach, -reach])
+    side = int(math.ceil(2 * reach / s.cell_m)) + 1
+    shape_b = (side, side)
+    shape = (fft.next_fast_len(shape_a[0] + side), fft.next_fast_len(shape_a[1] + side, real=True))
+    ra = Raster(a, lo_a, shape_a, s.cell_m, s.sigma_m, s.free_penalty)
+    fa_field = fft.rfft2(ra.field, s=shape, axes=(1, 2))
+    fa_occupied = fft.rfft2(ra.occupied, s=shape, axes=(1, 2))
+    half = s.yaw_window_deg
+    yaws = np.radians(np.arange(-half, half + 1e-9, s.yaw_step_deg)) if s.yaw_step_deg > 0 else np.zeros(1)
+    out = np.empty((len(yaws), *shape))
+    for y, yaw in enumerate(yaws):
+        rb = Raster(b, lo_b, shape_b, s.cell_m, s.sigma_m, s.free_penalty, rotation=float(yaw))
+        spectrum = (fa_field * np.conj(fft.rfft2(rb.occupied, s=shape, axes=(1, 2)))
+                    + fa_occupied * np.conj(fft.rfft2(rb.field, s=shape, axes=(1, 2)))).sum(axis=0)
+        out[y] = fft.irfft2(spectrum, s=shape)
+    return out, yaws, lo_a, lo_b, shape_a
+
+
+def distinct_peaks(scores: np.ndarray, yaws: np.ndarray, lo_a: np.ndarray, lo_b: np.ndarray, shape_a: tuple[int, int],
+                   s: GroupFitSettings, count: int = 2) -> list[tuple[float, np.ndarray]]:
+    """The best ``count`` coarse poses at least ``separation_m`` apart (at any yaw), as (score, pose)."""
+    work = scores.copy()
+    shape = work.shape[1:]
+    radius = int(math.ceil(s.separation_m / s.cell_m))
+    out = []
+    for _ in range(count):
+        y, r, c = np.unravel_index(int(np.argmax(work)), work.shape)
+        value = float(work[y, r, c])
+        if not math.isfinite(value):
+            break
+        k = np.array([c if c < shape_a[1] else c - shape[1], r if r < shape_a[0] else r - shape[0]])
+        out.append((value, np.array([*(k * s.cell_m + lo_a - lo_b), yaws[y]])))
+        dr = (np.arange(shape[0]) - r + shape[0] // 2) % shape[0] - shape[0] // 2
+        dc = (np.arange(shape[1]) - c + shape[1] // 2) % shape[1] - shape[1] // 2
+        work[:, (np.abs(dr)[:, None] <= radius) & (np.abs(dc)[None, :] <= radius)] = -np.inf
+    return out
+
+
+class FineScore:
+    """``S`` evaluated pose by pose on fields twice as fine as the search's, read bilinearly."""
+
+    def __init__(self, a: Cloud, b: Cloud, s: GroupFitSettings):
+        fine = 0.5 * s.cell_m
+        lo_a, shape_a = bounds(a.points, fine)
+        lo_b, shape_b = bounds(b.points, fine)
+        self.ra = Raster(a, lo_a, shape_a, fine, 0.5 * s.sigma_m, s.free_penalty)
+        self.rb = Raster(b, lo_b, shape_b, fine, 0.5 * s.sigma_m, s.free_penalty)
+        self.pa, self.bins_a = cell_centres(self.ra)
+        self.pb, self.bins_b = cell_centres(self.rb)
+
+    def __call__(self, poses: np.ndarray) -> np.ndarray:
+        """Scores of poses (M, 3), in coarse cells of wall (fine cells are half as long)."""
+        out = np.empty(len(poses))
+        for lo in range(0, len(poses), 64):
+            chunk = poses[lo:lo + 64]
+            c, sn = np.cos(chunk[:, 2])[:, None], np.sin(chunk[:, 2])[:, None]
+            bx = c * self.pb[None, :, 0] - sn * self.pb[None, :, 1] + chunk[:, 0, None]
+            by = sn * self.pb[None, :, 0] + c * self.pb[None, :, 1] + chunk[:, 1, None]
+            s1 = self.ra.sample(np.stack([bx, by], axis=-1), self.bins_b[None, :]).sum(axis=1)
+            ax, ay = self.pa[None, :, 0] - chunk[:, 0, None], self.pa[None, :, 1] - chunk[:, 1, None]
+            back = np.stack([c * ax + sn * ay, -sn * ax + c * ay], axis=-1)
+            s2 = self.rb.sample(back, self.bins_a[None, :]).sum(axis=1)
+            out[lo:lo + 64] = 0.5 * (s1 + s2)
+        return out
+
+
+def local_grid(pose: np.ndarray, step_m: float, turn_rad: float, half: int = 4, turns: int = 2) -> np.ndarray:
+    """Poses around ``pose``: ``±half`` steps of ``step_m`` in x and y, ``±turns`` steps of ``turn_rad``."""
+    d = np.arange(-half, half + 1) * step_m
+    t = np.arange(-turns, turns + 1) * turn_rad
+    dx, dy, dt = np.meshgrid(d, d, t, indexing="ij")
+    return np.column_stack([pose[0] + dx.ravel(), pose[1] + dy.ravel(), pose[2] + dt.ravel()])
+
+
+def refine(score: FineScore, pose: np.ndarray, s: GroupFitSettings) -> tuple[np.ndarray, float]:
+    """The best pose of the fine score around a coarse one: ±2 coarse cells and ±1 yaw step, then a grid
+    four times finer around the best of those; with its score."""
+    for step, turn in ((0.5 * s.cell_m, 0.5 * s.yaw_step_deg), (0.125 * s.cell_m, 0.125 * s.yaw_step_deg)):
+        grid = local_grid(pose, step, math.radians(turn))
+        values = score(grid)
+        k = int(np.argmax(values))
+        pose, best = grid[k], float(values[k])
+    return pose, best
+
+
+def refine_icp(a: Cloud, b: Cloud, pose: np.ndarray, *, iterations: int = 30, radius_m: float = 0.3,
+               trim_fraction: float = 0.8) -> np.ndarray:
+    """``pose`` polished by trimmed point-to-line ICP of B's walls onto A's walls seen from the same side
+    (normals within 67.5°), as the correlative matcher polishes its grid estimate."""
+    tree = cKDTree(a.points)
+    agree = math.cos(math.radians(67.5))
+    pose = np.asarray(pose, dtype=np.float64).copy()
+    for _ in range(iterations):
+        moved = transform(b.points, pose)
+        turned = rotate(b.normals, pose[2])
+        dist, idx = tree.query(moved, k=4, distance_upper_bound=radius_m)
+        found = idx < len(a.points)
+        safe = np.where(found, idx, 0)
+        same = found & (np.einsum("ij,ikj->ik", turned, a.normals[safe]) > agree)
+        first = np.argmax(same, axis=1)
+        ok = same[np.arange(len(moved)), first]
+        if ok.sum() < 10:
+            break
+        pick = safe[np.arange(len(moved)), first][ok]
+        d = dist[np.arange(len(moved)), first][ok]
+        keep = d <= np.quantile(d, trim_fraction)
+        src, dst, normals = moved[ok][keep], a.points[pick][keep], a.normals[pick][keep]
+        step = point_to_line_step(src, dst, normals)
+        pose = compose(step, pose)
+        if math.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-5:
+            break
+    return pose
+
+
+def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
+    """The best placement of cloud ``b`` in ``a``'s frame and its rival, or ``None`` when either is empty."""
+    if len(a.points) < 3 or len(b.points) < 3:
+        return None
+    scores, yaws, lo_a, lo_b, shape_a = coarse_scores(a, b, s)
+    peaks = distinct_peaks(scores, yaws, lo_a, lo_b, shape_a, s)
+    if not peaks:
+        return None
+    best_coarse, pose = peaks[0]
+    rival = peaks[1][0] if len(peaks) > 1 else 0.0
+    fine = FineScore(a, b, s)
+    pose, score = refine(fine, pose, s)
+    polished = refine_icp(a, b, pose)
+    polished_score = float(fine(polished[None, :])[0])
+    if polished_score >= score - POLISH_TOLERANCE:
+        pose, score = polished, polished_score
+    return GroupFit(pose=pose, score=score, rival=rival, best_coarse=best_coarse)
+
+
+def accept(fit: GroupFit | None, s: GroupFitSettings) -> str:
+    """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not."""
+    if fit is None:
+        return "no walls to match"
+    if fit.best_coarse < s.min_score:
+        return f"the two groups share too little wall: best score {fit.best_coarse:.0f} < {s.min_score:.0f}"
+    if fit.rival > s.ambiguity_ratio * fit.best_coarse:
+        return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
+                f"the best {fit.best_coarse:.0f}")
+    return ""
+
+
+def fit_covariance(a: Cloud, b: Cloud, pose: np.ndarray, *, pivot: np.ndarray, inlier_m: float = 0.1) -> np.ndarray:
+    """Covariance of ``pose`` from the point-to-line inliers of B's walls on A's, the turn taken about
+    ``pivot`` (A's frame: the station an edge of the fit starts from), floored at 3 cm and 0.5°."""
+    floor = np.diag([0.03**2, 0.03**2, math.radians(0.5) ** 2])
+    if len(a.points) < 3 or len(b.points) < 3:
+        return np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+    tree = cKDTree(a.points)
+    moved = transform(b.points, pose)
+    dist, idx = tree.query(moved, k=1)
+    inl = dist <= inlier_m
+    if inl.sum() < 3:
+        return np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+    normals = estimate_normals(a.points, tree)[idx[inl]]
+    rms = float(np.sqrt(np.mean(np.abs(np.einsum("ij,ij->i", moved[inl] - a.points[idx[inl]], normals)) ** 2)))
+    cov = covariance_from_fit(moved[inl] - np.asarray(pivot), normals, rms)
+    return 0.5 * (cov + cov.T) + floor
+
+
+def scans_digest(scans: Sequence[RangeScan]) -> str:
+    """A content key of scans (their echoes, bearings, yaw and depth), for the cache of fits."""
+    h = hashlib.blake2b(digest_size=16)
+    for scan in scans:
+        h.update(np.ascontiguousarray(scan.ranges_m).tobytes())
+        h.update(np.ascontiguousarray(scan.bearings_rad).tobytes())
+        h.update(np.array([scan.yaw_rad, scan.depth_m, scan.max_range_m, scan.beam_width_rad]).tobytes())
+    return h.hexdigest()
+
+
+class FitCache:
+    """Fits of group pairs, keyed by the scans' content and their poses within each group (rounded to
+    0.1 mm and 0.001°): site-graph solves the same groups again in every round of matches."""
+
+    def __init__(self, size: int = 256):
+        self.size = size
+        self.items: OrderedDict[tuple, GroupFit | None] = OrderedDict()
+
+    def get(self, key: tuple, compute) -> GroupFit | None:
+        if key in self.items:
+            self.items.move_to_end(key)
+            return self.items[key]
+        value = compute()
+        self.items[key] = value
+        if len(self.items) > self.size:
+            self.items.popitem(last=False)
+        return value
+
+
+def pose_key(poses: Sequence[np.ndarray]) -> tuple:
+    """Poses relative to the first, rounded (a group's shape, whatever frame it was solved in)."""
+    first = np.asarray(poses[0], dtype=np.float64)
+    out = []
+    for pose in poses:
+        rel = rotate(np.asarray(pose[:2]) - first[:2], -first[2]) if len(poses) else np.zeros(2)
+        out.append((round(float(rel[0]), 4), round(float(rel[1]), 4),
+                    round(math.degrees(float(pose[2] - first[2])), 3)))
+    return tuple(out)
