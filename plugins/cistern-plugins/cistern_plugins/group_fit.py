@@ -28,8 +28,9 @@ are cross-correlations over all translations at once (FFT), as in the correlativ
 of the same score on a grid twice as fine.
 
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
-cells of wall, about ``cell_m`` of wall each) and the best pose farther than ``separation_m`` away
-scores at most ``ambiguity_ratio`` of it. site-graph then puts the join to its own wall check (no
+cells of wall, about ``cell_m`` of wall each), the best pose farther than ``separation_m`` away scores
+at most ``ambiguity_ratio`` of it, and neither group is a tunnel seen from inside (two parallel walls fit
+every passage of their width, :func:`wall_spread`). site-graph then puts the join to its own wall check (no
 stretch of wall across water, walls not in the water of the other scans) before it merges the groups.
 """
 
@@ -46,12 +47,15 @@ from scipy import fft, ndimage
 from scipy.spatial import cKDTree
 
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.alignment import (GRAZING_DEG, FreeSpace, compose, covariance_from_fit, estimate_normals, point_to_line_step, rotate,
+from cistern_plugins.alignment import (GRAZING_DEG, FreeSpace, compose, estimate_normals, point_to_line_step, rotate,
                                       scan_points, transform)
 
 ORIENTATIONS = 8
-"""Wall orientations are binned in eighths of a turn; a point agrees with walls of its own bin and the
-two beside it (normals within 67.5°), so two sides of one wall never agree."""
+"""Wall orientations are binned in eighths of a turn for the search, in sixteenths for the refinement
+(:class:`FineScore`), where the grazing test below must be sharper."""
+AGREE_DEG = 67.5
+"""A point agrees with walls whose bin centres lie within this of its own bin's (normals within about
+90°), so the two sides of one wall never agree."""
 FREE_MARGIN_M = 0.3
 """Free space ends this far in front of a sonar's echo (as the correlative matcher's penalty does)."""
 OPEN_RANGE_SHARE = 0.75
@@ -60,6 +64,10 @@ decimetres of the range hold no detections (the shadow test needs water behind a
 BORDER_M = 1.0
 STATION_RADIUS_M = 0.3
 """No wall lies this close to a station: the vehicle floated there."""
+SCORE_TEMPERATURE = 4.0
+"""Cells of score per unit of log-likelihood when the score's curvature becomes a covariance."""
+MAX_SIGMA_M = 0.5
+MAX_SIGMA_DEG = 5.0
 POLISH_TOLERANCE = 1.0
 """The point-to-line polish is kept unless it loses more than this (cells of wall) of the score."""
 
@@ -71,9 +79,11 @@ class GroupFitSettings:
     cell_m: float = 0.1
     sigma_m: float = 0.1
     yaw_window_deg: float = 6.0
+    compass_sigma_deg: float = 2.0
     yaw_step_deg: float = 1.0
     free_penalty: float = 5.0
-    min_score: float = 20.0
+    min_score: float = 30.0
+    min_spread: float = 0.1
     ambiguity_ratio: float = 0.6
     separation_m: float = 0.5
 
@@ -92,12 +102,15 @@ class GroupFit:
         The best coarse score of a pose farther than ``separation_m`` from the best.
     best_coarse : float
         The best coarse score (the rival's yardstick).
+    covariance : ndarray, shape (3, 3)
+        Of ``pose``, the turn about B's origin (:func:`score_covariance`).
     """
 
     pose: np.ndarray
     score: float
     rival: float
     best_coarse: float
+    covariance: np.ndarray
 
 
 class Cloud:
@@ -116,16 +129,17 @@ class Cloud:
         self.points = np.vstack(points) if points else np.zeros((0, 2))
         self.normals = np.vstack(normals) if normals else np.zeros((0, 2))
         self.stations = np.array([pose[:2] for pose in poses], dtype=np.float64).reshape(-1, 2)
+        self.turns = np.array([pose[2] for pose in poses], dtype=np.float64)
 
-    def in_free_space(self, xy: np.ndarray, turn: float = 0.0) -> np.ndarray:
+    def in_free_space(self, xy: np.ndarray, turn: float = 0.0, bins: int = ORIENTATIONS) -> np.ndarray:
         """Per orientation bin, the mask of points (this cloud's frame) that one of its sonars saw empty
         and would have heard a wall of that orientation at: a ray within ``GRAZING_DEG`` of a wall's
         plane may pass it unheard (as :meth:`FreeSpace.violations` skips such walls; any normal of the
         bin, half a bin from its centre, counts), shape (K, N). The
         bins are those of a frame turned by ``turn`` from this cloud's. Within ``STATION_RADIUS_M`` of a
         station every orientation counts: no wall stands where the vehicle floated."""
-        out = np.zeros((ORIENTATIONS, len(xy)), dtype=bool)
-        centres = (np.arange(ORIENTATIONS) + 0.5) * 2 * np.pi / ORIENTATIONS - turn
+        out = np.zeros((bins, len(xy)), dtype=bool)
+        centres = (np.arange(bins) + 0.5) * 2 * np.pi / bins - turn
         normals = np.column_stack([np.cos(centres), np.sin(centres)])
         for free, pose in self.frees:
             rel = xy - pose[:2]
@@ -134,7 +148,7 @@ class Cloud:
             if not seen.any():
                 continue
             rays = rel[seen] / np.maximum(np.hypot(rel[seen, 0], rel[seen, 1]), 1e-9)[:, None]
-            out[:, seen] |= np.abs(normals @ rays.T) >= math.sin(math.radians(GRAZING_DEG + 180.0 / ORIENTATIONS))
+            out[:, seen] |= np.abs(normals @ rays.T) >= math.sin(math.radians(GRAZING_DEG + 180.0 / bins))
         return out
 
 
@@ -148,10 +162,10 @@ def facing_normals(points: np.ndarray) -> np.ndarray:
     return normals
 
 
-def orientation_bins(normals: np.ndarray) -> np.ndarray:
-    """The orientation bin (0 .. ORIENTATIONS - 1) of each normal."""
+def orientation_bins(normals: np.ndarray, bins: int = ORIENTATIONS) -> np.ndarray:
+    """The orientation bin (0 .. bins - 1) of each normal."""
     angle = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), 2 * np.pi)
-    return np.floor(angle / (2 * np.pi / ORIENTATIONS)).astype(np.int64) % ORIENTATIONS
+    return np.floor(angle / (2 * np.pi / bins)).astype(np.int64) % bins
 
 
 class Raster:
@@ -159,23 +173,24 @@ class Raster:
     likelihood field of the walls it agrees with, minus the free-space penalty."""
 
     def __init__(self, cloud: Cloud, lo: np.ndarray, shape: tuple[int, int], cell_m: float, sigma_m: float,
-                 penalty: float, rotation: float = 0.0):
+                 penalty: float, rotation: float = 0.0, bins: int = ORIENTATIONS):
         self.lo, self.shape, self.cell = np.asarray(lo, dtype=np.float64), shape, cell_m
         points, normals = cloud.points, cloud.normals
         if rotation:
             points, normals = rotate(points, rotation), rotate(normals, rotation)
         cells = np.floor((points - self.lo) / cell_m).astype(np.int64)
         inside = (cells >= 0).all(axis=1) & (cells[:, 0] < shape[1]) & (cells[:, 1] < shape[0])
-        cells, bins = cells[inside], orientation_bins(normals[inside])
-        self.occupied = np.zeros((ORIENTATIONS, *shape), dtype=np.float64)
-        self.occupied[bins, cells[:, 1], cells[:, 0]] = 1.0
+        cells, which = cells[inside], orientation_bins(normals[inside], bins)
+        self.occupied = np.zeros((bins, *shape), dtype=np.float64)
+        self.occupied[which, cells[:, 1], cells[:, 0]] = 1.0
         rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
         centres = np.column_stack([cols.ravel(), rows.ravel()]) * cell_m + self.lo + cell_m / 2
-        free = cloud.in_free_space(rotate(centres, -rotation) if rotation else centres, rotation)
-        free = free.reshape(ORIENTATIONS, *shape)
-        self.field = np.zeros((ORIENTATIONS, *shape), dtype=np.float64)
-        for k in range(ORIENTATIONS):
-            near = self.occupied[[(k - 1) % ORIENTATIONS, k, (k + 1) % ORIENTATIONS]].any(axis=0)
+        free = cloud.in_free_space(rotate(centres, -rotation) if rotation else centres, rotation, bins)
+        free = free.reshape(bins, *shape)
+        reach = int(round(AGREE_DEG / (360.0 / bins)))
+        self.field = np.zeros((bins, *shape), dtype=np.float64)
+        for k in range(bins):
+            near = self.occupied[[(k + d) % bins for d in range(-reach, reach + 1)]].any(axis=0)
             if near.any():
                 dist = ndimage.distance_transform_edt(~near) * cell_m
                 self.field[k] = np.exp(-0.5 * (dist / sigma_m) ** 2)
@@ -210,6 +225,25 @@ def cell_centres(raster: Raster) -> tuple[np.ndarray, np.ndarray]:
     return np.column_stack([cols, rows]) * raster.cell + raster.lo + raster.cell / 2, bins
 
 
+@dataclass(frozen=True)
+class CompassPrior:
+    """What the compasses say of the turn between two groups' frames: each frame is the compass frame of
+    its scans less their mean heading correction, each compass reading with ``compass_sigma_deg`` of
+    noise; as a penalty on the score in its own units (``SCORE_TEMPERATURE`` cells per unit of
+    log-likelihood)."""
+
+    mean: float
+    sigma: float
+
+    @classmethod
+    def of(cls, a: Cloud, b: Cloud, s: GroupFitSettings) -> "CompassPrior":
+        sigma = math.radians(s.compass_sigma_deg) * math.sqrt(1.0 / max(len(a.turns), 1) + 1.0 / max(len(b.turns), 1))
+        return cls(float(np.mean(a.turns) - np.mean(b.turns)) if len(a.turns) and len(b.turns) else 0.0, sigma)
+
+    def penalty(self, turn: np.ndarray) -> np.ndarray:
+        return SCORE_TEMPERATURE * 0.5 * ((np.asarray(turn) - self.mean) / self.sigma) ** 2
+
+
 def coarse_scores(a: Cloud, b: Cloud, s: GroupFitSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                                   tuple[int, int]]:
     """``S`` on the coarse grid of every yaw of the window: (scores (Y, H, W), yaws, A's grid origin,
@@ -225,13 +259,14 @@ def coarse_scores(a: Cloud, b: Cloud, s: GroupFitSettings) -> tuple[np.ndarray, 
     fa_field = fft.rfft2(ra.field, s=shape, axes=(1, 2))
     fa_occupied = fft.rfft2(ra.occupied, s=shape, axes=(1, 2))
     half = s.yaw_window_deg
-    yaws = np.radians(np.arange(-half, half + 1e-9, s.yaw_step_deg)) if s.yaw_step_deg > 0 else np.zeros(1)
+    prior = CompassPrior.of(a, b, s)
+    yaws = prior.mean + (np.radians(np.arange(-half, half + 1e-9, s.yaw_step_deg)) if s.yaw_step_deg > 0 else np.zeros(1))
     out = np.empty((len(yaws), *shape))
     for y, yaw in enumerate(yaws):
         rb = Raster(b, lo_b, shape_b, s.cell_m, s.sigma_m, s.free_penalty, rotation=float(yaw))
         spectrum = (fa_field * np.conj(fft.rfft2(rb.occupied, s=shape, axes=(1, 2)))
                     + fa_occupied * np.conj(fft.rfft2(rb.field, s=shape, axes=(1, 2)))).sum(axis=0)
-        out[y] = fft.irfft2(spectrum, s=shape)
+        out[y] = fft.irfft2(spectrum, s=shape) - prior.penalty(yaw)
     return out, yaws, lo_a, lo_b, shape_a
 
 
@@ -262,13 +297,15 @@ class FineScore:
         fine = 0.5 * s.cell_m
         lo_a, shape_a = bounds(a.points, fine)
         lo_b, shape_b = bounds(b.points, fine)
-        self.ra = Raster(a, lo_a, shape_a, fine, 0.5 * s.sigma_m, s.free_penalty)
-        self.rb = Raster(b, lo_b, shape_b, fine, 0.5 * s.sigma_m, s.free_penalty)
+        self.ra = Raster(a, lo_a, shape_a, fine, 0.5 * s.sigma_m, s.free_penalty, bins=2 * ORIENTATIONS)
+        self.rb = Raster(b, lo_b, shape_b, fine, 0.5 * s.sigma_m, s.free_penalty, bins=2 * ORIENTATIONS)
         self.pa, self.bins_a = cell_centres(self.ra)
         self.pb, self.bins_b = cell_centres(self.rb)
+        self.prior = CompassPrior.of(a, b, s)
 
-    def __call__(self, poses: np.ndarray) -> np.ndarray:
-        """Scores of poses (M, 3), in coarse cells of wall (fine cells are half as long)."""
+    def __call__(self, poses: np.ndarray, *, prior: bool = True) -> np.ndarray:
+        """Scores of poses (M, 3), in coarse cells of wall (fine cells are half as long), less the
+        compass prior's penalty unless ``prior`` is false."""
         out = np.empty(len(poses))
         for lo in range(0, len(poses), 64):
             chunk = poses[lo:lo + 64]
@@ -279,7 +316,7 @@ class FineScore:
             ax, ay = self.pa[None, :, 0] - chunk[:, 0, None], self.pa[None, :, 1] - chunk[:, 1, None]
             back = np.stack([c * ax + sn * ay, -sn * ax + c * ay], axis=-1)
             s2 = self.rb.sample(back, self.bins_a[None, :]).sum(axis=1)
-            out[lo:lo + 64] = 0.5 * (s1 + s2)
+            out[lo:lo + 64] = 0.5 * (s1 + s2) - (self.prior.penalty(chunk[:, 2]) if prior else 0.0)
         return out
 
 
@@ -347,13 +384,30 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
     polished_score = float(fine(polished[None, :])[0])
     if polished_score >= score - POLISH_TOLERANCE:
         pose, score = polished, polished_score
-    return GroupFit(pose=pose, score=score, rival=rival, best_coarse=best_coarse)
+    return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
+                    best_coarse=best_coarse, covariance=score_covariance(fine, pose))
 
 
-def accept(fit: GroupFit | None, s: GroupFitSettings) -> str:
-    """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not."""
+def wall_spread(cloud: Cloud) -> float:
+    """How evenly a cloud's walls face every way: the smaller eigenvalue of the mean ``n n^T`` of its wall
+    normals over the larger (1 for a round room, 0 for two parallel walls: a tunnel seen from inside)."""
+    if len(cloud.normals) < 3:
+        return 0.0
+    low, high = np.linalg.eigvalsh(cloud.normals.T @ cloud.normals / len(cloud.normals))
+    return float(low / high) if high > 0 else 0.0
+
+
+def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, float] = (1.0, 1.0)) -> str:
+    """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not.
+
+    ``spreads`` are the two groups' :func:`wall_spread`: a group whose walls all run one way (a station
+    inside a tunnel sees two parallel walls and little else) fits every passage of that width as well
+    as its own, so it joins through its matches only."""
     if fit is None:
         return "no walls to match"
+    if min(spreads) < s.min_spread:
+        return (f"a group's walls all run one way (a tunnel seen from inside: spread {min(spreads):.2f} < "
+                f"{s.min_spread:.2f}), which fits every passage of its width")
     if fit.best_coarse < s.min_score:
         return f"the two groups share too little wall: best score {fit.best_coarse:.0f} < {s.min_score:.0f}"
     if fit.rival > s.ambiguity_ratio * fit.best_coarse:
@@ -362,22 +416,34 @@ def accept(fit: GroupFit | None, s: GroupFitSettings) -> str:
     return ""
 
 
-def fit_covariance(a: Cloud, b: Cloud, pose: np.ndarray, *, pivot: np.ndarray, inlier_m: float = 0.1) -> np.ndarray:
-    """Covariance of ``pose`` from the point-to-line inliers of B's walls on A's, the turn taken about
-    ``pivot`` (A's frame: the station an edge of the fit starts from), floored at 3 cm and 0.5°."""
-    floor = np.diag([0.03**2, 0.03**2, math.radians(0.5) ** 2])
-    if len(a.points) < 3 or len(b.points) < 3:
-        return np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
-    tree = cKDTree(a.points)
-    moved = transform(b.points, pose)
-    dist, idx = tree.query(moved, k=1)
-    inl = dist <= inlier_m
-    if inl.sum() < 3:
-        return np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
-    normals = estimate_normals(a.points, tree)[idx[inl]]
-    rms = float(np.sqrt(np.mean(np.abs(np.einsum("ij,ij->i", moved[inl] - a.points[idx[inl]], normals)) ** 2)))
-    cov = covariance_from_fit(moved[inl] - np.asarray(pivot), normals, rms)
-    return 0.5 * (cov + cov.T) + floor
+def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
+    """Covariance of a fit's pose from the curvature of its score (a Laplace approximation): a quadratic
+    fitted to ``S`` over ±0.1 m and ±0.5° around ``pose``, read as a log-likelihood at
+    ``SCORE_TEMPERATURE`` cells per unit. A direction the score cannot tell apart (along a tunnel seen
+    from both ends) gets a wide sigma, up to ``MAX_SIGMA_M`` and ``MAX_SIGMA_DEG``. The turn is about
+    B's frame origin (``pose[:2]``), as ``pose`` turns B."""
+    d = np.arange(-2, 3) * 0.05
+    t = np.radians(np.arange(-1, 2) * 0.5)
+    dx, dy, dt = (v.ravel() for v in np.meshgrid(d, d, t, indexing="ij"))
+    values = score(np.column_stack([pose[0] + dx, pose[1] + dy, pose[2] + dt]), prior=False)
+    design = np.column_stack([np.ones_like(dx), dx, dy, dt, dx * dx, dy * dy, dt * dt, dx * dy, dx * dt, dy * dt])
+    c = np.linalg.lstsq(design, values, rcond=None)[0]
+    hessian = -np.array([[2 * c[4], c[7], c[8]], [c[7], 2 * c[5], c[9]], [c[8], c[9], 2 * c[6]]])
+    scale = np.array([1.0, 1.0, 1.0 / math.radians(1.0)])  # condition metres against radians
+    low = np.diag(1.0 / np.array([MAX_SIGMA_M, MAX_SIGMA_M, math.radians(MAX_SIGMA_DEG)]) ** 2) * SCORE_TEMPERATURE
+    scaled = hessian / np.outer(scale, scale)
+    vals, vecs = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    floor = np.min(np.diag(low) / scale**2)
+    information = (vecs * np.maximum(vals, floor)) @ vecs.T * np.outer(scale, scale)
+    cov = SCORE_TEMPERATURE * np.linalg.inv(information)
+    return 0.5 * (cov + cov.T)
+
+
+def about(cov: np.ndarray, pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """A pose covariance with its turn about ``pose[:2]`` re-expressed with the turn about ``pivot``."""
+    arm = np.asarray(pivot, dtype=np.float64) - np.asarray(pose[:2], dtype=np.float64)
+    m = np.array([[1.0, 0.0, -arm[1]], [0.0, 1.0, arm[0]], [0.0, 0.0, 1.0]])
+    return m @ cov @ m.T
 
 
 def scans_digest(scans: Sequence[RangeScan]) -> str:

@@ -56,8 +56,21 @@ builds a graph over the whole site instead, in three steps.
    groups' scans may lay a stretch of wall across the water the other saw (one chamber's opening onto
    a look-alike's solid wall), and in the last two tiers the median share of wall points in the other
    scans' water must stay small (a look-alike chamber fits the scans it was matched with, not the
-   others that see it from elsewhere); a refused join's matches are rejected with that reason. Every edge left over is checked against the merged geometry
-   as before.
+   others that see it from elsewhere); a refused join's matches are rejected with that reason.
+
+   Groups that no match could join are then fitted as wholes (``group_fit``,
+   :func:`~cistern_plugins.site_groups.join_by_fit`, :mod:`cistern_plugins.group_fit`). A station in a
+   tunnel or at its mouth shares a few metres of wall with any single station beyond it, too little for
+   a pair-wise match to tell the right place from a look-alike; the scans joined on each side of the
+   break see much more together — every wall of their chamber and all the water in it. The fit searches
+   every translation and a ±``group_yaw_window_deg`` heading window for the placement of one group in the
+   other's frame that lays walls on walls seen from the same side, and no wall in water either group
+   saw (open beams count as water); it joins two groups when its score reaches ``group_min_score``, no
+   place 0.5 m away scores more than ``group_ambiguity_ratio`` of it, neither group is a tunnel seen
+   from inside (two parallel walls fit every passage of their width), and the join passes the wall
+   check. The clearest such fit joins first, until none is left. Its edge carries the covariance of the
+   fit's score, wide along a tunnel that both groups see end to end. Every edge left over is checked
+   against the merged geometry as before.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
@@ -120,7 +133,7 @@ class SiteGraphParams(GraphParams):
                                        "at least this confidence (step 2 of the module docstring)")
     group_fit: bool = Field(True, description="join the groups no match could join by fitting them as wholes "
                             "(step 2 of the module docstring, cistern_plugins.group_fit)")
-    group_min_score: float = Field(20.0, ge=0, description="a group fit joins only with at least this score "
+    group_min_score: float = Field(30.0, ge=0, description="a group fit joins only with at least this score "
                                    "(cells of 0.1 m of agreeing wall, both ways)")
     group_ambiguity_ratio: float = Field(0.6, gt=0, le=1, description="a group fit joins only when no place "
                                          "0.5 m or more away scores more than this share of the best")
@@ -132,7 +145,8 @@ class SiteGraphParams(GraphParams):
     def group_settings(self) -> GroupFitSettings:
         """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""
         return GroupFitSettings(min_score=self.group_min_score, ambiguity_ratio=self.group_ambiguity_ratio,
-                                free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg)
+                                free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg,
+                                compass_sigma_deg=self.compass_sigma_deg)
 
 
 class SiteGraphLocalizer(GuidedLocalizer):

@@ -16,8 +16,8 @@ from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel, rotate
 from cistern_plugins.factor_graph import Edge
-from cistern_plugins.group_fit import Cloud, FitCache, GroupFit, accept, fit_covariance, fit_groups, pose_key, \
-    scans_digest
+from cistern_plugins.group_fit import Cloud, FitCache, GroupFit, about, accept, fit_groups, pose_key, scans_digest, \
+    wall_spread
 
 if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
@@ -257,16 +257,15 @@ def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[in
     return FITS.get(key, lambda: fit_groups(cloud_a, cloud_b, p.group_settings())), cloud_a, cloud_b
 
 
-def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit, cloud_a: Cloud, cloud_b: Cloud) -> Edge:
+def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit) -> Edge:
     """The fit as an edge between the two scans of the groups that lie nearest each other once placed,
-    with the covariance of the fit's point-to-line inliers turned into that edge's frame."""
+    with the fit's covariance turned into that edge's frame."""
     t = gtsam.Pose2(*fit.pose)
     placed = {k: t.compose(graph.pose[k]) for k in b}
     i, j = min(((i, j) for i in a for j in b),
                key=lambda ij: math.hypot(graph.pose[ij[0]].x() - placed[ij[1]].x(), graph.pose[ij[0]].y() - placed[ij[1]].y()))
     z = graph.pose[i].between(placed[j])
-    pivot = np.array([placed[j].x(), placed[j].y()])
-    cov = fit_covariance(cloud_a, cloud_b, np.array([*(fit.pose[:2]), fit.pose[2]]), pivot=pivot)
+    cov = about(fit.covariance, fit.pose, np.array([placed[j].x(), placed[j].y()]))
     turn = np.eye(3)
     turn[:2, :2] = rotate(np.eye(2), -graph.pose[i].theta())
     return Edge(i, j, pose_array(z), turn @ cov @ turn.T)
@@ -293,15 +292,15 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                 if not a or not b:
                     continue
                 fit, cloud_a, cloud_b = group_fit(scans, graph, a, b, p, digest)
-                why = accept(fit, p.group_settings())
+                why = accept(fit, p.group_settings(), (wall_spread(cloud_a), wall_spread(cloud_b)))
                 if why:
                     for k in graph.members(small):
                         graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group: {why}")
                     continue
-                candidates.append((fit.score, a, b, fit, cloud_a, cloud_b))
+                candidates.append((fit.score, a, b, fit))
         joined = False
-        for _, a, b, fit, cloud_a, cloud_b in sorted(candidates, key=lambda c: -c[0]):
-            edge = group_edge(graph, a, b, fit, cloud_a, cloud_b)
+        for _, a, b, fit in sorted(candidates, key=lambda c: -c[0]):
+            edge = group_edge(graph, a, b, fit)
             why = walls.conflict(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
             if why:
                 for k in b:

@@ -1,0 +1,103 @@
+"""Group fits (:mod:`cistern_plugins.group_fit`): two chambers joined by a tunnel are found where they
+lie from the walls and water their scans saw together, where no single pair of scans could say; a
+tunnel seen from inside, and groups that share no wall, are refused; site-graph joins its groups so."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cistern_archive.grid.polygon import polygon_scan
+from cistern_archive.pipeline.contracts import MatchResult
+from cistern_plugins.group_fit import Cloud, GroupFitSettings, accept, fit_groups, wall_spread
+from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
+
+# West chamber 5 m x 4 m, a tunnel 1 m wide and 1.5 m long, an east chamber of another shape.
+SITE = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 1.5], [6.5, 1.5], [6.5, -0.5], [9.5, -0.5], [11.0, 1.0],
+                 [11.0, 4.5], [6.5, 4.5], [6.5, 2.5], [5.0, 2.5], [5.0, 4.0], [0.0, 4.0]])
+WEST = [(1.2, 1.0), (3.0, 3.0), (4.4, 2.0)]
+EAST = [(7.2, 2.0), (9.0, 0.8), (10.0, 3.6)]
+TUNNEL = (5.75, 2.0)
+
+
+def _scan(position, rng, station):
+    scan = polygon_scan([SITE], position, 0.0, rng=rng, n_beams=400, max_range_m=6.0)
+    return scan.__class__(**{**scan.__dict__, "station": station})
+
+
+def _group(positions, rng, label):
+    """Scans at ``positions`` and their poses in the frame of the first (as site-graph holds a group)."""
+    scans = [_scan(p, rng, f"{label}{k + 1}") for k, p in enumerate(positions)]
+    origin = np.asarray(positions[0])
+    return scans, [np.array([*(np.asarray(p) - origin), 0.0]) for p in positions]
+
+
+def test_two_chambers_are_found_where_they_lie_from_what_their_groups_saw():
+    rng = np.random.default_rng(5)
+    west, east = _group(WEST, rng, "w"), _group(EAST, rng, "e")
+    settings = GroupFitSettings()
+    fit = fit_groups(Cloud(*west), Cloud(*east), settings)
+    truth = np.asarray(EAST[0]) - np.asarray(WEST[0])
+    assert accept(fit, settings) == ""
+    error = fit.pose[:2] - truth  # along the tunnel (x) the walls say little: both groups see its two walls
+    assert abs(error[1]) < 0.03 and abs(error[0]) < 0.2
+    assert math.sqrt(fit.covariance[0, 0]) > 2 * math.sqrt(fit.covariance[1, 1])  # and the covariance says so
+    assert abs(math.degrees(fit.pose[2])) < 1.0
+    assert fit.rival <= settings.ambiguity_ratio * fit.best_coarse
+
+
+def test_the_fit_finds_a_turned_group_within_the_compass_window():
+    """The east group held in a frame turned by -3° (its compasses read 3° off) is turned back."""
+    rng = np.random.default_rng(6)
+    west = _group(WEST, rng, "w")
+    scans, poses = _group(EAST, rng, "e")
+    turn = math.radians(-3.0)
+    c, s = math.cos(turn), math.sin(turn)
+    turned = [np.array([c * p[0] - s * p[1], s * p[0] + c * p[1], turn]) for p in poses]
+    fit = fit_groups(Cloud(*west), Cloud(scans, turned), GroupFitSettings())
+    assert accept(fit, GroupFitSettings()) == ""
+    assert math.degrees(fit.pose[2]) == pytest.approx(3.0, abs=0.5)
+    assert abs(fit.pose[1] - (EAST[0][1] - WEST[0][1])) < 0.05
+
+
+def test_a_tunnel_seen_from_inside_runs_one_way_and_is_refused():
+    rng = np.random.default_rng(7)
+    inside = polygon_scan([SITE], TUNNEL, 0.0, rng=rng, n_beams=400, max_range_m=2.0)  # sees its two walls
+    tunnel = Cloud([inside], [np.zeros(3)])
+    room = Cloud(*_group(WEST, rng, "w"))
+    assert wall_spread(tunnel) < 0.1 < wall_spread(room)
+    fit = fit_groups(room, tunnel, GroupFitSettings())
+    assert "run one way" in accept(fit, GroupFitSettings(), (wall_spread(room), wall_spread(tunnel)))
+
+
+def test_groups_that_saw_no_common_wall_are_not_joined():
+    rng = np.random.default_rng(8)
+    west = Cloud(*_group(WEST[:2], rng, "w"))
+    far_room = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 5.0], [0.0, 5.0]]) + [40.0, 0.0]
+    other = polygon_scan([far_room], (41.5, 2.0), 0.0, rng=rng, n_beams=400, max_range_m=6.0)
+    fit = fit_groups(west, Cloud([other], [np.zeros(3)]), GroupFitSettings())
+    assert "too little wall" in accept(fit, GroupFitSettings()) or "ambiguous" in accept(fit, GroupFitSettings())
+
+
+def _match(i, j, positions):
+    d = np.asarray(positions[j]) - np.asarray(positions[i])
+    return MatchResult(i, j, float(d[0]), float(d[1]), 0.0, 1.0, True, 1, 0.0, confidence=0.99)
+
+
+def test_site_graph_joins_the_two_chambers_no_match_could_join():
+    """Matches only within each chamber: the group fit joins the two groups, every scan is placed where
+    it lies, and without the fit the east chamber is left unplaced, the reason naming the fit."""
+    rng = np.random.default_rng(9)
+    positions = WEST + EAST
+    scans = [_scan(p, rng, f"s{k + 1}") for k, p in enumerate(positions)]
+    matches = [_match(i, j, positions) for i in range(6) for j in range(6) if i != j and (i < 3) == (j < 3)]
+    poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert poses.placed.all()
+    error = (poses.xy_m - poses.xy_m[0]) - (np.asarray(positions) - positions[0])
+    assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2  # x: along the tunnel
+    alone = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_fit=False))
+    assert alone.placed.tolist() == [True] * 3 + [False] * 3
+    graph = consistent_edges(scans, matches, SiteGraphParams(group_min_score=1e6))
+    assert len(set(graph.group)) == 2 and "too little wall" in graph.unjoined[3]
