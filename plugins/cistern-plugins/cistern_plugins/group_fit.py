@@ -22,10 +22,14 @@ The score of placing group B by ``T`` in group A's frame is::
 
 over the occupied cells of each group (a wall seen by several stations counts once), with ``L_G`` the
 likelihood field of group G's walls of matching orientation, ``exp(-d^2 / 2 sigma^2)``, minus
-``free_penalty`` in G's free space and zero in space G never saw. For every yaw of the window both sums
-are cross-correlations over all translations at once (FFT), as in the correlative matching of Olson
-(ICRA 2009) with the second, reverse sum added; the best pose is then refined by a direct local search
-of the same score on a grid twice as fine.
+``free_penalty`` in G's free space and zero in space G never saw. A beam that heard no wall saw water
+(out to ``OPEN_RANGE_SHARE`` of its range), and no wall stands where a vehicle floated. The compasses
+add a prior on the turn between the two frames (:class:`CompassPrior`). For every yaw of the window
+both sums are cross-correlations over all translations at once (FFT), as in the correlative matching
+of Olson (ICRA 2009) with the second, reverse sum added; the best pose is then refined by a direct
+local search of the same score on fields twice as fine with orientations twice as narrow
+(:class:`FineScore`), polished by point-to-line ICP of walls seen from the same side, and given the
+covariance of the score's curvature (:func:`score_covariance`).
 
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each), the best pose farther than ``separation_m`` away scores
@@ -59,8 +63,9 @@ AGREE_DEG = 67.5
 FREE_MARGIN_M = 0.3
 """Free space ends this far in front of a sonar's echo (as the correlative matcher's penalty does)."""
 OPEN_RANGE_SHARE = 0.75
-"""A beam that heard no wall saw water out to this share of the sonar's range: beyond it, the last
-decimetres of the range hold no detections (the shadow test needs water behind a wall)."""
+"""A beam that heard no wall saw water out to this share of the sonar's range. Not to all of it: the
+last decimetres of a range hold no detections (the shadow test needs water behind a wall), and a far
+wall met obliquely may answer too weakly to be segmented."""
 BORDER_M = 1.0
 STATION_RADIUS_M = 0.3
 """No wall lies this close to a station: the vehicle floated there."""
@@ -97,7 +102,7 @@ class GroupFit:
     pose : ndarray, shape (3,)
         ``(x, y, theta)``: B's frame in A's frame (``q_A = R(theta) q_B + (x, y)``).
     score : float
-        ``S`` at the refined pose, in coarse cells (module docstring).
+        ``S`` at the refined pose, in coarse cells (module docstring), without the compass prior.
     rival : float
         The best coarse score of a pose farther than ``separation_m`` from the best.
     best_coarse : float
@@ -135,9 +140,9 @@ class Cloud:
         """Per orientation bin, the mask of points (this cloud's frame) that one of its sonars saw empty
         and would have heard a wall of that orientation at: a ray within ``GRAZING_DEG`` of a wall's
         plane may pass it unheard (as :meth:`FreeSpace.violations` skips such walls; any normal of the
-        bin, half a bin from its centre, counts), shape (K, N). The
-        bins are those of a frame turned by ``turn`` from this cloud's. Within ``STATION_RADIUS_M`` of a
-        station every orientation counts: no wall stands where the vehicle floated."""
+        bin, half a bin from its centre, counts), shape (K, N). The bins are those of a frame turned by
+        ``turn`` from this cloud's. Within ``STATION_RADIUS_M`` of a station every orientation counts: no
+        wall stands where the vehicle floated."""
         out = np.zeros((bins, len(xy)), dtype=bool)
         centres = (np.arange(bins) + 0.5) * 2 * np.pi / bins - turn
         normals = np.column_stack([np.cos(centres), np.sin(centres)])
@@ -457,8 +462,8 @@ def scans_digest(scans: Sequence[RangeScan]) -> str:
 
 
 class FitCache:
-    """Fits of group pairs, keyed by the scans' content and their poses within each group (rounded to
-    0.1 mm and 0.001°): site-graph solves the same groups again in every round of matches."""
+    """Fits of group pairs, keyed by the scans' content and their poses within each group
+    (:func:`pose_key`): site-graph solves the same groups again in every round of matches."""
 
     def __init__(self, size: int = 256):
         self.size = size
@@ -475,12 +480,7 @@ class FitCache:
         return value
 
 
-def pose_key(poses: Sequence[np.ndarray]) -> tuple:
-    """Poses relative to the first, rounded (a group's shape, whatever frame it was solved in)."""
-    first = np.asarray(poses[0], dtype=np.float64)
-    out = []
-    for pose in poses:
-        rel = rotate(np.asarray(pose[:2]) - first[:2], -first[2]) if len(poses) else np.zeros(2)
-        out.append((round(float(rel[0]), 4), round(float(rel[1]), 4),
-                    round(math.degrees(float(pose[2] - first[2])), 3)))
-    return tuple(out)
+def pose_key(poses: Sequence[np.ndarray]) -> bytes:
+    """The exact poses of a group, as a cache key: a fit is reused only for the very same inputs, so a
+    cached and a computed fit are the same bytes and rebuilds stay reproducible."""
+    return np.ascontiguousarray(np.asarray(poses, dtype=np.float64)).tobytes()

@@ -14,7 +14,7 @@ import numpy as np
 
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
-from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel, rotate
+from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
 from cistern_plugins.factor_graph import Edge
 from cistern_plugins.group_fit import Cloud, FitCache, GroupFit, about, accept, fit_groups, pose_key, scans_digest, \
     wall_spread
@@ -266,9 +266,9 @@ def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit) -> Edge:
                key=lambda ij: math.hypot(graph.pose[ij[0]].x() - placed[ij[1]].x(), graph.pose[ij[0]].y() - placed[ij[1]].y()))
     z = graph.pose[i].between(placed[j])
     cov = about(fit.covariance, fit.pose, np.array([placed[j].x(), placed[j].y()]))
-    turn = np.eye(3)
-    turn[:2, :2] = rotate(np.eye(2), -graph.pose[i].theta())
-    return Edge(i, j, pose_array(z), turn @ cov @ turn.T)
+    c, s = math.cos(graph.pose[i].theta()), math.sin(graph.pose[i].theta())
+    into_i = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # A's frame to scan i's: R(-theta_i)
+    return Edge(i, j, pose_array(z), into_i @ cov @ into_i.T)
 
 
 def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams) -> list[Edge]:
@@ -318,7 +318,7 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
 
 def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[MatchResult], labels: Sequence[str]) -> str:
     """Why scan ``k`` is not placed, naming stations: its matches with the placed part of the site and
-    what became of each (the first three)."""
+    what became of each (the first three), and why no group fit joined it."""
     if reference >= 0 and graph.group[k] == graph.group[reference]:
         return ("its only consistent matches were dropped by the least-squares fit's χ² gate; "
                 f"no chain of matches joins it to the reference station {labels[reference]}")
@@ -333,7 +333,7 @@ def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[Matc
         else:
             why = m.reason or "not converged"
         notes.append(f"{pair}: {why}")
-    if k in graph.unjoined:
-        notes.insert(0, graph.unjoined[k])
     detail = "; ".join(notes[:3]) + (f"; and {len(notes) - 3} more" if len(notes) > 3 else "")
+    if k in graph.unjoined:
+        detail = "; ".join(filter(None, (detail, graph.unjoined[k])))
     return f"no consistent chain of matches to {target}" + (f" ({detail})" if detail else " (no pair was matched)")
