@@ -88,7 +88,8 @@ def _match(i, j, positions):
 
 def test_site_graph_joins_the_two_chambers_no_match_could_join():
     """Matches only within each chamber: the group fit joins the two groups, every scan is placed where
-    it lies, and without the fit the east chamber is left unplaced, the reason naming the fit."""
+    it lies, the join is reported (``Poses.group_links``), and without the fit the east chamber is left
+    unplaced, the reason naming the fit."""
     rng = np.random.default_rng(9)
     positions = WEST + EAST
     scans = [_scan(p, rng, f"s{k + 1}") for k, p in enumerate(positions)]
@@ -97,6 +98,8 @@ def test_site_graph_joins_the_two_chambers_no_match_could_join():
     assert poses.placed.all()
     error = (poses.xy_m - poses.xy_m[0]) - (np.asarray(positions) - positions[0])
     assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2  # x: along the tunnel
+    (i, j), = poses.group_links  # the join is reported, between the stations nearest across it
+    assert (i, j) == (2, 3)
     alone = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_fit=False))
     assert alone.placed.tolist() == [True] * 3 + [False] * 3
     graph = consistent_edges(scans, matches, SiteGraphParams(group_min_score=1e6))

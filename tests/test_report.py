@@ -554,3 +554,20 @@ def test_index_shows_a_surveys_track_errors_beside_the_published_rows(tmp_path):
     cisterns_only = tmp_path / "cisterns"
     cisterns_only.mkdir()
     assert 'id="track-table"' not in render_index([IndexEntry.from_result(cistern)], cisterns_only).read_text()
+
+
+def test_map_marks_the_joins_of_groups_fitted_as_wholes(tmp_path):
+    """A join that no match made (``Poses.group_links``) is drawn and explained, so the map does not
+    suggest the scans were placed by the failed matches drawn between them."""
+    from cistern_archive.core.matches import MatchResult
+    from cistern_archive.report.maps import map_figure
+
+    xy = np.array([[0.0, 0.0], [2.0, 0.0], [6.0, 1.0]])
+    failed = [MatchResult(1, 2, 4.0, 1.0, 0.0, 0.1, False, 1, 0.0, reason="ambiguous")]
+    plain = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0)
+    fitted = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0, group_links=((1, 2),))
+    without = map_figure(tmp_path / "a.png", None, plain, failed, ["s1", "s2", "s3"], dpi=60)
+    with_fit = map_figure(tmp_path / "b.png", None, fitted, failed, ["s1", "s2", "s3"], dpi=60)
+    assert "fitting each group" not in without.caption
+    assert "dotted lines join groups of scans that no match could join" in with_fit.caption
+    assert (tmp_path / "a.png").read_bytes() != (tmp_path / "b.png").read_bytes()

@@ -24,6 +24,10 @@ class Poses:
         Index of the reference scan (Table III), -1 when nothing could be placed.
     covariance : ndarray or None, shape (N, 3, 3)
         Marginal uncertainty of (x, y, yaw) when the localizer estimates it.
+    group_links : tuple of (int, int)
+        Pairs of scans whose groups the localizer joined by fitting the groups as wholes, where no match
+        of any two of their scans could (``site-graph``'s group fits); each pair is the two scans that
+        lie nearest each other across the join.
     """
 
     xy_m: np.ndarray
@@ -32,3 +36,4 @@ class Poses:
     reasons: tuple[str, ...]
     reference: int
     covariance: np.ndarray | None = None
+    group_links: tuple[tuple[int, int], ...] = ()

@@ -61,6 +61,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         ))
     result.scans = scans
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
+    result.group_links = [] if poses is None else [
+        (labels[i], labels[j]) for i, j in poses.group_links if 0 <= i < len(labels) and 0 <= j < len(labels)]
     result.pairs = [
         PairResult(i=m.i, j=m.j, dx_m=finite_or_none(m.dx_m), dy_m=finite_or_none(m.dy_m), dyaw_rad=finite_or_none(m.dyaw_rad),
                    weight=finite_or_none(m.weight) or 0.0, confidence=finite_or_none(m.confidence), tentative=m.tentative,

@@ -142,6 +142,8 @@ class SiteResult(Model):
     status_reasons: list[str] = Field(default_factory=list, description="why the status is not ok")
     scans: list[ScanPose] = Field(default_factory=list)
     pairs: list[PairResult] = Field(default_factory=list)
+    group_links: list[tuple[str, str]] = Field(default_factory=list, description="stations whose groups of "
+                                               "scans were joined by fitting the groups as wholes, not by a match")
     dimensions: list[DimensionResult] = Field(default_factory=list)
     dimension_stats: dict[str, float | None] = Field(default_factory=dict)
     map_stats: dict[str, float] = Field(default_factory=dict)

@@ -12,6 +12,8 @@ from matplotlib.figure import Figure
 rcParams["svg.hashsalt"] = "cistern-archive"
 
 LINK_OK, LINK_BAD = "#1b7837", "#c51b7d"
+LINK_FIT = "#2b8cbe"
+"""Joins of groups of scans fitted as wholes (:attr:`~cistern_archive.core.poses.Poses.group_links`)."""
 
 
 @dataclass(frozen=True)

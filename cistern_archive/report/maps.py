@@ -24,7 +24,7 @@ from cistern_archive.core.dimensions import DimensionTable
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.poses import Poses
-from cistern_archive.report.canvas import LINK_BAD, LINK_OK, FigureFile, new_figure
+from cistern_archive.report.canvas import LINK_BAD, LINK_FIT, LINK_OK, FigureFile, new_figure
 from cistern_archive.report.files import save_figure
 
 GRID_CMAP = "gray_r"
@@ -75,7 +75,8 @@ def map_figure(
     last) is labelled (a survey's hundreds of revolutions would bury the map under their labels).
 
     Links join placed stations: solid green for converged matches, dashed magenta for the others, the
-    width growing with the match weight (relative to the largest weight of the site).
+    width growing with the match weight (relative to the largest weight of the site); dotted blue for
+    the joins of groups of scans fitted as wholes (:attr:`Poses.group_links`).
     """
     fig = _map_canvas(grid, dpi)
     ax = fig.add_subplot()
@@ -98,6 +99,11 @@ def map_figure(
             width = 0.8 + 3.0 * (abs(m.weight) / scale if scale > 0 and math.isfinite(m.weight) else 0.0)
             ax.plot([a[0], b[0]], [a[1], b[1]], color=LINK_OK if m.converged else LINK_BAD,
                     linestyle="-" if m.converged else "--", linewidth=width, alpha=0.85, zorder=2)
+    fitted = [] if poses is None else [(i, j) for i, j in poses.group_links
+                                       if 0 <= i < len(poses.placed) and 0 <= j < len(poses.placed)]
+    for i, j in fitted:
+        a, b = poses.xy_m[i], poses.xy_m[j]
+        ax.plot([a[0], b[0]], [a[1], b[1]], color=LINK_FIT, linestyle=":", linewidth=3.0, zorder=2.5)
     if poses is not None and placed:
         xy = poses.xy_m[placed]
         ref = poses.reference
@@ -115,6 +121,7 @@ def map_figure(
                         color="#08306b", fontweight="bold", zorder=5)
     handles = [Line2D([], [], color=LINK_OK, lw=2.5, label="converged match"),
                Line2D([], [], color=LINK_BAD, lw=1.5, ls="--", label="not converged"),
+               *([Line2D([], [], color=LINK_FIT, lw=2.5, ls=":", label="groups fitted as wholes")] if fitted else []),
                Line2D([], [], marker="o", ls="", mfc="#2166ac", mec="white", ms=8, label="scan station"),
                Line2D([], [], marker="*", ls="", mfc="#ffd92f", mec="black", ms=12, label="reference scan")]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
@@ -126,7 +133,10 @@ def map_figure(
         f"Occupancy probability (black occupied, white free, grey unknown){depth}; "
         f"{len(placed)} of {len(labels)} scans placed"
         + (f" (not placed: {', '.join(unplaced)})" if unplaced else "")
-        + "; lines are pair matches, solid when converged, wider for larger weights."
+        + "; lines are pair matches, solid when converged, wider for larger weights"
+        + ("; dotted lines join groups of scans that no match could join, placed by fitting each group's walls "
+           "and water to the other's (less precise along a tunnel both groups see end to end)" if fitted else "")
+        + "."
     )
     return FigureFile("map", path.name, "Map with scan stations and pair links",
                       f"Top-down evidence grid map{depth} with {len(placed)} scan stations and "

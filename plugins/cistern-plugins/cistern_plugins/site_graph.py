@@ -84,6 +84,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import ClassVar
 
 import gtsam
@@ -236,7 +237,9 @@ class SiteGraphLocalizer(GuidedLocalizer):
                 graph.rejected[(e.i, e.j)] = "dropped by the χ² gate of the site's least-squares fit"
         placed = set(spanning_tree(n, kept, reference))
         reasons = [unplaced_reason(k, reference, graph, matches, labels) for k in range(n)]
-        return poses_from_solution(scans, solved, result, placed, reference, reasons)
+        poses = poses_from_solution(scans, solved, result, placed, reference, reasons)
+        links = tuple((i, j) for i, j in graph.fitted if i in placed and j in placed)
+        return replace(poses, group_links=links)
 
 
 def reverse_checks(graph: Graph, matches: Sequence[MatchResult], p: SiteGraphParams) -> list[tuple[int, int, MatchGuess]]:

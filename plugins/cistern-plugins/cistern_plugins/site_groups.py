@@ -42,6 +42,8 @@ class Graph:
     rejected: dict[tuple[int, int], str] = field(default_factory=dict)
     unjoined: dict[int, str] = field(default_factory=dict)
     """Why the group fit did not join a scan's group to the reference's (by scan)."""
+    fitted: list[tuple[int, int]] = field(default_factory=list)
+    """The scans of each join by a group fit (the edge's two ends)."""
 
     def members(self, g: int) -> list[int]:
         return [k for k, h in enumerate(self.group) if h == g]
@@ -310,6 +312,7 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
             for k in graph.members(graph.group[edge.i]):
                 graph.unjoined.pop(k, None)
             added.append(edge)
+            graph.fitted.append((edge.i, edge.j))
             joined = True
             break
         if not joined:
