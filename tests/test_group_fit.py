@@ -1,4 +1,4 @@
-"""Group fits (:mod:`cistern_plugins.group_fit`): two chambers joined by a tunnel are found where they
+"""Group fits (:mod:`cistern_plugins.group_fit`, :mod:`cistern_plugins.group_clouds`): two chambers joined by a tunnel are found where they
 lie from the walls and water their scans saw together, where no single pair of scans could say; a
 tunnel seen from inside, and groups that share no wall, are refused; site-graph joins its groups so."""
 
@@ -11,7 +11,8 @@ import pytest
 
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_archive.pipeline.contracts import MatchResult
-from cistern_plugins.group_fit import Cloud, GroupFitSettings, accept, fit_groups, wall_spread
+from cistern_plugins.group_clouds import Cloud, wall_spread
+from cistern_plugins.group_fit import GroupFitSettings, accept, fit_groups
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
 
 # West chamber 5 m x 4 m, a tunnel 1 m wide and 1.5 m long, an east chamber of another shape.

@@ -23,7 +23,7 @@ The score of placing group B by ``T`` in group A's frame is::
 over the occupied cells of each group (a wall seen by several stations counts once), with ``L_G`` the
 likelihood field of group G's walls of matching orientation, ``exp(-d^2 / 2 sigma^2)``, minus
 ``free_penalty`` in G's free space and zero in space G never saw. A beam that heard no wall saw water
-(out to ``OPEN_RANGE_SHARE`` of its range), and no wall stands where a vehicle floated. The compasses
+(out to 0.75 of its range), and no wall stands where a vehicle floated. The compasses
 add a prior on the turn between the two frames (:class:`CompassPrior`). For every yaw of the window
 both sums are cross-correlations over all translations at once (FFT), as in the correlative matching
 of Olson (ICRA 2009) with the second, reverse sum added; the best pose is then refined by a direct
@@ -34,7 +34,7 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each), the best pose farther than ``separation_m`` away scores
 at most ``ambiguity_ratio`` of it, and neither group is a tunnel seen from inside (two parallel walls fit
-every passage of their width, :func:`wall_spread`). site-graph then puts the join to its own wall check (no
+every passage of their width, :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no
 stretch of wall across water, walls not in the water of the other scans) before it merges the groups.
 """
 
@@ -47,28 +47,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import fft, ndimage
+from scipy import fft
 from scipy.spatial import cKDTree
 
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.alignment import (GRAZING_DEG, FreeSpace, compose, estimate_normals, point_to_line_step, rotate,
-                                      scan_points, transform)
+from cistern_plugins.alignment import compose, point_to_line_step, rotate, transform
+from cistern_plugins.group_clouds import BORDER_M, ORIENTATIONS, Cloud, Raster, bounds, cell_centres
 
-ORIENTATIONS = 8
-"""Wall orientations are binned in eighths of a turn for the search, in sixteenths for the refinement
-(:class:`FineScore`), where the grazing test below must be sharper."""
-AGREE_DEG = 67.5
-"""A point agrees with walls whose bin centres lie within this of its own bin's (normals within about
-90°), so the two sides of one wall never agree."""
-FREE_MARGIN_M = 0.3
-"""Free space ends this far in front of a sonar's echo (as the correlative matcher's penalty does)."""
-OPEN_RANGE_SHARE = 0.75
-"""A beam that heard no wall saw water out to this share of the sonar's range. Not to all of it: the
-last decimetres of a range hold no detections (the shadow test needs water behind a wall), and a far
-wall met obliquely may answer too weakly to be segmented."""
-BORDER_M = 1.0
-STATION_RADIUS_M = 0.3
-"""No wall lies this close to a station: the vehicle floated there."""
 SCORE_TEMPERATURE = 4.0
 """Cells of score per unit of log-likelihood when the score's curvature becomes a covariance."""
 MAX_SIGMA_M = 0.5
@@ -116,118 +101,6 @@ class GroupFit:
     rival: float
     best_coarse: float
     covariance: np.ndarray
-
-
-class Cloud:
-    """The walls and the water of a set of scans placed in one frame."""
-
-    def __init__(self, scans: Sequence[RangeScan], poses: Sequence[np.ndarray]):
-        points, normals = [], []
-        self.frees: list[tuple[FreeSpace, np.ndarray]] = []
-        for scan, pose in zip(scans, poses):
-            p = scan_points(scan)
-            n = facing_normals(p)
-            points.append(transform(p, pose))
-            normals.append(rotate(n, pose[2]) if len(n) else n)
-            free = FreeSpace(scan, open_range_m=OPEN_RANGE_SHARE * float(scan.max_range_m))
-            self.frees.append((free, np.asarray(pose, dtype=np.float64)))
-        self.points = np.vstack(points) if points else np.zeros((0, 2))
-        self.normals = np.vstack(normals) if normals else np.zeros((0, 2))
-        self.stations = np.array([pose[:2] for pose in poses], dtype=np.float64).reshape(-1, 2)
-        self.turns = np.array([pose[2] for pose in poses], dtype=np.float64)
-
-    def in_free_space(self, xy: np.ndarray, turn: float = 0.0, bins: int = ORIENTATIONS) -> np.ndarray:
-        """Per orientation bin, the mask of points (this cloud's frame) that one of its sonars saw empty
-        and would have heard a wall of that orientation at: a ray within ``GRAZING_DEG`` of a wall's
-        plane may pass it unheard (as :meth:`FreeSpace.violations` skips such walls; any normal of the
-        bin, half a bin from its centre, counts), shape (K, N). The bins are those of a frame turned by
-        ``turn`` from this cloud's. Within ``STATION_RADIUS_M`` of a station every orientation counts: no
-        wall stands where the vehicle floated."""
-        out = np.zeros((bins, len(xy)), dtype=bool)
-        centres = (np.arange(bins) + 0.5) * 2 * np.pi / bins - turn
-        normals = np.column_stack([np.cos(centres), np.sin(centres)])
-        for free, pose in self.frees:
-            rel = xy - pose[:2]
-            out[:, np.hypot(rel[:, 0], rel[:, 1]) < STATION_RADIUS_M] = True
-            seen = free.in_free_space(rotate(rel, -pose[2]), FREE_MARGIN_M)
-            if not seen.any():
-                continue
-            rays = rel[seen] / np.maximum(np.hypot(rel[seen, 0], rel[seen, 1]), 1e-9)[:, None]
-            out[:, seen] |= np.abs(normals @ rays.T) >= math.sin(math.radians(GRAZING_DEG + 180.0 / bins))
-        return out
-
-
-def facing_normals(points: np.ndarray) -> np.ndarray:
-    """Unit wall normals of a scan's points (relative to its sonar), turned towards the sonar."""
-    if len(points) < 3:
-        return np.zeros((len(points), 2))
-    normals = estimate_normals(points, cKDTree(points))
-    away = np.einsum("ij,ij->i", normals, points) > 0
-    normals[away] *= -1
-    return normals
-
-
-def orientation_bins(normals: np.ndarray, bins: int = ORIENTATIONS) -> np.ndarray:
-    """The orientation bin (0 .. bins - 1) of each normal."""
-    angle = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), 2 * np.pi)
-    return np.floor(angle / (2 * np.pi / bins)).astype(np.int64) % bins
-
-
-class Raster:
-    """A cloud rasterised on a grid of one frame: occupied cells per orientation bin, and per bin the
-    likelihood field of the walls it agrees with, minus the free-space penalty."""
-
-    def __init__(self, cloud: Cloud, lo: np.ndarray, shape: tuple[int, int], cell_m: float, sigma_m: float,
-                 penalty: float, rotation: float = 0.0, bins: int = ORIENTATIONS):
-        self.lo, self.shape, self.cell = np.asarray(lo, dtype=np.float64), shape, cell_m
-        points, normals = cloud.points, cloud.normals
-        if rotation:
-            points, normals = rotate(points, rotation), rotate(normals, rotation)
-        cells = np.floor((points - self.lo) / cell_m).astype(np.int64)
-        inside = (cells >= 0).all(axis=1) & (cells[:, 0] < shape[1]) & (cells[:, 1] < shape[0])
-        cells, which = cells[inside], orientation_bins(normals[inside], bins)
-        self.occupied = np.zeros((bins, *shape), dtype=np.float64)
-        self.occupied[which, cells[:, 1], cells[:, 0]] = 1.0
-        rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
-        centres = np.column_stack([cols.ravel(), rows.ravel()]) * cell_m + self.lo + cell_m / 2
-        free = cloud.in_free_space(rotate(centres, -rotation) if rotation else centres, rotation, bins)
-        free = free.reshape(bins, *shape)
-        reach = int(round(AGREE_DEG / (360.0 / bins)))
-        self.field = np.zeros((bins, *shape), dtype=np.float64)
-        for k in range(bins):
-            near = self.occupied[[(k + d) % bins for d in range(-reach, reach + 1)]].any(axis=0)
-            if near.any():
-                dist = ndimage.distance_transform_edt(~near) * cell_m
-                self.field[k] = np.exp(-0.5 * (dist / sigma_m) ** 2)
-            self.field[k][free[k]] -= penalty
-
-    def sample(self, points: np.ndarray, bins: np.ndarray) -> np.ndarray:
-        """The field of each point's bin at the point, interpolated bilinearly (0 outside the grid)."""
-        u = (points - self.lo) / self.cell - 0.5
-        base = np.floor(u).astype(np.int64)
-        frac = u - base
-        out = np.zeros(u.shape[:-1])
-        for dc, dr in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            cols, rows = base[..., 0] + dc, base[..., 1] + dr
-            inside = (cols >= 0) & (rows >= 0) & (cols < self.shape[1]) & (rows < self.shape[0])
-            weight = (frac[..., 0] if dc else 1 - frac[..., 0]) * (frac[..., 1] if dr else 1 - frac[..., 1])
-            values = self.field[np.broadcast_to(bins, rows.shape), np.where(inside, rows, 0), np.where(inside, cols, 0)]
-            out += np.where(inside, weight * values, 0.0)
-        return out
-
-
-def bounds(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, tuple[int, int]]:
-    """Grid origin and shape (rows, cols) covering points with a border."""
-    lo = points.min(axis=0) - BORDER_M
-    hi = points.max(axis=0) + BORDER_M
-    size = np.ceil((hi - lo) / cell_m).astype(np.int64) + 1
-    return lo, (int(size[1]), int(size[0]))
-
-
-def cell_centres(raster: Raster) -> tuple[np.ndarray, np.ndarray]:
-    """Centres of the occupied cells of a raster (its frame) and their bins."""
-    bins, rows, cols = np.nonzero(raster.occupied)
-    return np.column_stack([cols, rows]) * raster.cell + raster.lo + raster.cell / 2, bins
 
 
 @dataclass(frozen=True)
@@ -391,15 +264,6 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
         pose, score = polished, polished_score
     return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
                     best_coarse=best_coarse, covariance=score_covariance(fine, pose))
-
-
-def wall_spread(cloud: Cloud) -> float:
-    """How evenly a cloud's walls face every way: the smaller eigenvalue of the mean ``n n^T`` of its wall
-    normals over the larger (1 for a round room, 0 for two parallel walls: a tunnel seen from inside)."""
-    if len(cloud.normals) < 3:
-        return 0.0
-    low, high = np.linalg.eigvalsh(cloud.normals.T @ cloud.normals / len(cloud.normals))
-    return float(low / high) if high > 0 else 0.0
 
 
 def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, float] = (1.0, 1.0)) -> str:

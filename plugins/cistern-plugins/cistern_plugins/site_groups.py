@@ -16,8 +16,8 @@ from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
 from cistern_plugins.factor_graph import Edge
-from cistern_plugins.group_fit import Cloud, FitCache, GroupFit, about, accept, fit_groups, pose_key, scans_digest, \
-    wall_spread
+from cistern_plugins.group_clouds import Cloud, wall_spread
+from cistern_plugins.group_fit import FitCache, GroupFit, about, accept, fit_groups, pose_key, scans_digest
 
 if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
