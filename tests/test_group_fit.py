@@ -105,3 +105,15 @@ def test_site_graph_joins_the_two_chambers_no_match_could_join():
     assert alone.placed.tolist() == [True] * 3 + [False] * 3
     graph = consistent_edges(scans, matches, SiteGraphParams(group_min_score=1e6))
     assert len(set(graph.group)) == 2 and "too little wall" in graph.unjoined[3]
+
+
+def test_a_search_peak_the_refinement_does_not_confirm_is_refused():
+    """The coarse search's orientation bins are wide and its grazing test lenient; a peak that scores a
+    fifth of itself or less on the sharper refined fields is no peak (one joined a chamber 9 m off)."""
+    from cistern_plugins.group_fit import GroupFit
+
+    settings = GroupFitSettings()
+    fit = GroupFit(pose=np.zeros(3), score=19.4, rival=20.6, best_coarse=174.0, covariance=np.eye(3) * 1e-4)
+    assert "does not hold once refined" in accept(fit, settings)
+    held = GroupFit(pose=np.zeros(3), score=60.0, rival=20.6, best_coarse=174.0, covariance=np.eye(3) * 1e-4)
+    assert accept(held, settings) == ""

@@ -32,8 +32,9 @@ local search of the same score on fields twice as fine with orientations twice a
 covariance of the score's curvature (:func:`score_covariance`).
 
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
-cells of wall, about ``cell_m`` of wall each), the best pose farther than ``separation_m`` away scores
-at most ``ambiguity_ratio`` of it, and neither group is a tunnel seen from inside (two parallel walls fit
+cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
+peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, and neither group is a tunnel seen from inside (two parallel walls fit
 every passage of their width, :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no
 stretch of wall across water, walls not in the water of the other scans) before it merges the groups.
 """
@@ -74,6 +75,7 @@ class GroupFitSettings:
     free_penalty: float = 5.0
     min_score: float = 30.0
     min_spread: float = 0.1
+    min_refined_share: float = 0.2
     ambiguity_ratio: float = 0.6
     separation_m: float = 0.5
 
@@ -279,6 +281,9 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
                 f"{s.min_spread:.2f}), which fits every passage of its width")
     if fit.best_coarse < s.min_score:
         return f"the two groups share too little wall: best score {fit.best_coarse:.0f} < {s.min_score:.0f}"
+    if fit.score < s.min_refined_share * fit.best_coarse:
+        return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
+                f"{fit.best_coarse:.0f} in the search")
     if fit.rival > s.ambiguity_ratio * fit.best_coarse:
         return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
                 f"the best {fit.best_coarse:.0f}")
