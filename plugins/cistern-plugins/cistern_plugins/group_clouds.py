@@ -47,7 +47,6 @@ class Cloud:
             self.frees.append((free, np.asarray(pose, dtype=np.float64)))
         self.points = np.vstack(points) if points else np.zeros((0, 2))
         self.normals = np.vstack(normals) if normals else np.zeros((0, 2))
-        self.stations = np.array([pose[:2] for pose in poses], dtype=np.float64).reshape(-1, 2)
         self.turns = np.array([pose[2] for pose in poses], dtype=np.float64)
 
     def in_free_space(self, xy: np.ndarray, turn: float = 0.0, bins: int = ORIENTATIONS) -> np.ndarray:

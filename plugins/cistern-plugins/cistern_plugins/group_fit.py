@@ -331,14 +331,15 @@ def scans_digest(scans: Sequence[RangeScan]) -> str:
 
 
 class FitCache:
-    """Fits of group pairs, keyed by the scans' content and their poses within each group
-    (:func:`pose_key`): site-graph solves the same groups again in every round of matches."""
+    """Fits of group pairs (with whatever a caller keeps beside them), keyed by the scans' content and
+    their poses within each group (:func:`pose_key`): site-graph solves the same groups again in every
+    round of matches, and a hit builds nothing."""
 
     def __init__(self, size: int = 256):
         self.size = size
-        self.items: OrderedDict[tuple, GroupFit | None] = OrderedDict()
+        self.items: OrderedDict[tuple, object] = OrderedDict()
 
-    def get(self, key: tuple, compute) -> GroupFit | None:
+    def get(self, key: tuple, compute):
         if key in self.items:
             self.items.move_to_end(key)
             return self.items[key]

@@ -23,6 +23,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
 
 
+def pose_array(pose: gtsam.Pose2) -> np.ndarray:
+    """``(x, y, theta)`` of a pose, as the alignment helpers take it."""
+    return np.array([pose.x(), pose.y(), pose.theta()])
+
+
 def same_level(a: RangeScan, b: RangeScan, p: SiteGraphParams) -> bool:
     """Whether two scans were taken at one depth level (both depths unknown counts as one level)."""
     if not (math.isfinite(a.depth_m) and math.isfinite(b.depth_m)):
@@ -178,7 +183,7 @@ class WallCheck:
                 rel = graph.pose[a].between(offset.compose(graph.pose[b]))
                 if not same_level(sa, sb, self.p) or math.hypot(rel.x(), rel.y()) > min(sa.max_range_m, sb.max_range_m):
                     continue
-                q = self.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), self.limits)
+                q = self.model(a).assess_pair(sb, pose_array(rel), self.limits)
                 runs.append((q.violation_run_m, a, b))
                 if q.inliers >= self.limits.min_inliers:
                     shares.append((q.violation_ratio, a, b))
@@ -240,23 +245,25 @@ FITS = FitCache()
 """Group fits already computed (site-graph solves the same groups again in every round)."""
 
 
-def pose_array(pose: gtsam.Pose2) -> np.ndarray:
-    return np.array([pose.x(), pose.y(), pose.theta()])
-
-
 def level_members(graph: Graph, scans: Sequence[RangeScan], g: int, depth_of: RangeScan, p: SiteGraphParams) -> list[int]:
     """The scans of group ``g`` at the depth level of scan ``depth_of``."""
     return [k for k in graph.members(g) if same_level(scans[k], depth_of, p)]
 
 
 def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[int], p: SiteGraphParams,
-              digest: str) -> tuple[GroupFit | None, Cloud, Cloud]:
-    """The fit of the scans ``b`` (one group) in the frame of the scans ``a`` (another), cached."""
-    cloud_a = Cloud([scans[k] for k in a], [pose_array(graph.pose[k]) for k in a])
-    cloud_b = Cloud([scans[k] for k in b], [pose_array(graph.pose[k]) for k in b])
-    key = (digest, tuple(a), pose_key([pose_array(graph.pose[k]) for k in a]),
-           tuple(b), pose_key([pose_array(graph.pose[k]) for k in b]), p.group_settings())
-    return FITS.get(key, lambda: fit_groups(cloud_a, cloud_b, p.group_settings())), cloud_a, cloud_b
+              digest: str) -> tuple[GroupFit | None, tuple[float, float]]:
+    """The fit of the scans ``b`` (one group) in the frame of the scans ``a`` (another) and the two
+    groups' :func:`~cistern_plugins.group_clouds.wall_spread`, cached: the clouds are built only when
+    the pair was not fitted before."""
+    poses_a, poses_b = [pose_array(graph.pose[k]) for k in a], [pose_array(graph.pose[k]) for k in b]
+
+    def compute() -> tuple[GroupFit | None, tuple[float, float]]:
+        cloud_a = Cloud([scans[k] for k in a], poses_a)
+        cloud_b = Cloud([scans[k] for k in b], poses_b)
+        return fit_groups(cloud_a, cloud_b, p.group_settings()), (wall_spread(cloud_a), wall_spread(cloud_b))
+
+    key = (digest, tuple(a), pose_key(poses_a), tuple(b), pose_key(poses_b), p.group_settings())
+    return FITS.get(key, compute)
 
 
 def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit) -> Edge:
@@ -293,14 +300,13 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                 a, b = level_members(graph, scans, big, scans[probe], p), level_members(graph, scans, small, scans[probe], p)
                 if not a or not b:
                     continue
-                fit, cloud_a, cloud_b = group_fit(scans, graph, a, b, p, digest)
-                why = accept(fit, p.group_settings(), (wall_spread(cloud_a), wall_spread(cloud_b)))
+                fit, spreads = group_fit(scans, graph, a, b, p, digest)
+                why = accept(fit, p.group_settings(), spreads)
                 if why:
                     for k in graph.members(small):
                         graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group: {why}")
                     continue
                 candidates.append((fit.score, a, b, fit))
-        joined = False
         for _, a, b, fit in sorted(candidates, key=lambda c: -c[0]):
             edge = group_edge(graph, a, b, fit)
             why = walls.conflict(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
@@ -313,9 +319,8 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                 graph.unjoined.pop(k, None)
             added.append(edge)
             graph.fitted.append((edge.i, edge.j))
-            joined = True
             break
-        if not joined:
+        else:
             return added
 
 
