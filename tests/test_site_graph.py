@@ -276,3 +276,17 @@ def test_a_break_with_one_unrivalled_estimate_asks_for_the_reverse_match_around_
     confirmed = replace(_match(2, 1, converged=False, tentative=True, confidence=0.6), guess=guess)
     poses = loc.localize(scans, base + [forward, wrong_reverse, confirmed], p)
     assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+
+
+def test_when_the_gate_cuts_the_reference_off_the_scans_still_joined_are_placed():
+    """The χ² gate may drop every edge of the first station (a heading the compasses contradict); the
+    scans the remaining edges still join are then anchored on one of them, not all left unplaced."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    ms = [_match(i, j) for i in range(1, 6) for j in range(1, 6) if i != j and abs(i - j) <= 2]
+    turned = _match(0, 1)
+    ms.append(MatchResult(0, 1, turned.dx_m, turned.dy_m, 0.6, 1.0, True, 1, 0.0, reason="", confidence=0.99))
+    poses = loc.localize(_scans(6), ms, p)
+    assert not poses.placed[0] and poses.placed[1:].all()
+    assert "s2" in poses.reasons[0]  # anchored on the first station still joined
+    placed = poses.xy_m[1:] - poses.xy_m[1]
+    np.testing.assert_allclose(placed, TRUTH[1:] - TRUTH[1], atol=1e-6)

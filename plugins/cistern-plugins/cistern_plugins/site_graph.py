@@ -75,6 +75,9 @@ builds a graph over the whole site instead, in three steps.
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
    and a χ² gate that drops the worst edge while its squared Mahalanobis residual exceeds ``gate_chi2``.
+   When the gate cuts the reference station off (every edge of it contradicted by the others or by the
+   compasses), the largest set of scans the kept edges still join is anchored on its first station and
+   solved again: one bad station leaves itself unplaced, not the whole site.
    ``gtsam.Marginals`` gives each scan's covariance.
 
 Reasons name stations by their labels: an unplaced scan says which of its matches were rejected and why.
@@ -231,15 +234,33 @@ class SiteGraphLocalizer(GuidedLocalizer):
         edges = graph.ties + graph.edges
         keep = frozenset(range(len(graph.ties)))
         solved, result, kept = solve_gated(n, edges, reference, p.noise(), p.gate_chi2, p.gate_rounds, keep)
+        placed = set(spanning_tree(n, kept, reference))
+        largest = largest_component(n, kept)
+        if len(largest) > len(placed):  # the gate cut the reference off: anchor the scans still joined
+            reference = min(largest)
+            solved, result, kept = solve_gated(n, kept, reference, p.noise(), p.gate_chi2, p.gate_rounds, keep)
+            placed = set(spanning_tree(n, kept, reference))
         kept_ids = {id(e) for e in kept}
         for e in edges:
             if id(e) not in kept_ids:
                 graph.rejected[(e.i, e.j)] = "dropped by the χ² gate of the site's least-squares fit"
-        placed = set(spanning_tree(n, kept, reference))
         reasons = [unplaced_reason(k, reference, graph, matches, labels) for k in range(n)]
         poses = poses_from_solution(scans, solved, result, placed, reference, reasons)
         links = tuple((i, j) for i, j in graph.fitted if i in placed and j in placed)
         return replace(poses, group_links=links)
+
+
+def largest_component(n: int, edges: Sequence[Edge]) -> set[int]:
+    """The scans of the largest set joined by ``edges`` (the lowest-numbered set among equals)."""
+    seen: set[int] = set()
+    best: set[int] = set()
+    for k in range(n):
+        if k not in seen:
+            component = set(spanning_tree(n, edges, k))
+            seen |= component
+            if len(component) > len(best):
+                best = component
+    return best
 
 
 def reverse_checks(graph: Graph, matches: Sequence[MatchResult], p: SiteGraphParams) -> list[tuple[int, int, MatchGuess]]:
