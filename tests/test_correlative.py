@@ -79,3 +79,24 @@ def test_an_ambiguous_match_reports_its_rival_places_and_a_unique_one_none():
     pair = simulated_pair(rng, overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0), noise_m=0.02)
     unique = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)
     assert unique.converged and unique.alternatives == ()
+
+
+def test_a_reference_pyramid_is_built_once_and_changes_no_result():
+    from dataclasses import replace
+
+    from cistern_plugins.correlative import PYRAMIDS
+
+    rng = np.random.default_rng(11)
+    pair = simulated_pair(rng, overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0), noise_m=0.02)
+    PYRAMIDS.items.clear()
+    first = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)
+    assert len(PYRAMIDS.items) == 1
+    PYRAMIDS.items.clear()
+    fresh = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)
+    assert (first.dx_m, first.dy_m, first.dyaw_rad, first.weight) == (fresh.dx_m, fresh.dy_m, fresh.dyaw_rad, fresh.weight)
+    again = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)  # from the cache
+    assert len(PYRAMIDS.items) == 1
+    assert (again.dx_m, again.dy_m, again.weight) == (fresh.dx_m, fresh.dy_m, fresh.weight)
+    moved = replace(pair.reference, ranges_m=pair.reference.ranges_m + 0.01)  # other echoes, another pyramid
+    CorrelativeMatcher().match(moved, pair.moving, CorrelativeParams(), rng=rng)
+    assert len(PYRAMIDS.items) == 2

@@ -39,6 +39,7 @@ from scipy import ndimage
 
 from cistern_archive.pipeline.contracts import GuidedMatcher, MatchGuess, MatchResult, StageParams
 from cistern_archive.core.scan import RangeScan
+from cistern_plugins.content_cache import ContentCache, scans_digest
 from cistern_plugins.registration import (
     ConvergenceParams,
     FreeSpace,
@@ -244,8 +245,7 @@ class CorrelativeMatcher(GuidedMatcher):
         centre = np.zeros(3) if guess is None else np.array([guess.dx_m, guess.dy_m, guess.dyaw_rad])
         half_m = search_half_width(reference, moving, p) if guess is None else guess.radius_m
         src = transform(thinned(scan_points(moving), 2 * p.resolution_m), centre)
-        pyr = LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, half_m + 4 * p.sigma_m, p.levels,
-                                model.free, p.free_space_margin_m, p.free_space_penalty)
+        pyr = reference_pyramid(reference, model, p, half_m + 4 * p.sigma_m)
         angles = _angles(src, p.search_deg if guess is None else p.guess_search_deg, p.resolution_m)
         window = int(math.ceil(half_m / p.resolution_m))
         nodes, scores = branch_and_bound(pyr, src, angles, window, p.ambiguity_ratio,
@@ -282,6 +282,20 @@ class CorrelativeMatcher(GuidedMatcher):
         if ambiguous:
             result = replace(result, alternatives=rival_guesses(nodes, angles, centre, p))
         return replace(result, tentative=tentative) if tentative else result
+
+
+PYRAMIDS = ContentCache(size=4)
+"""Likelihood pyramids of recent reference scans: a site's pairs share their references (every pair of
+one round asked of the same scan), and a pyramid costs more than the search it serves."""
+
+
+def reference_pyramid(reference: RangeScan, model: ReferenceModel, p: CorrelativeParams,
+                      margin_m: float) -> LikelihoodPyramid:
+    """The likelihood pyramid of ``reference`` for a search ``margin_m`` wide (kept in :data:`PYRAMIDS`)."""
+    key = (scans_digest([reference]), margin_m, p.resolution_m, p.sigma_m, p.levels, p.free_space_margin_m,
+           p.free_space_penalty)
+    return PYRAMIDS.get(key, lambda: LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, margin_m, p.levels,
+                                                       model.free, p.free_space_margin_m, p.free_space_penalty))
 
 
 def thinned(points: np.ndarray, cell_m: float) -> np.ndarray:

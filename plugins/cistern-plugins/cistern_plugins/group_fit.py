@@ -41,9 +41,7 @@ stretch of wall across water, walls not in the water of the other scans) before 
 
 from __future__ import annotations
 
-import hashlib
 import math
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -318,36 +316,6 @@ def about(cov: np.ndarray, pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
     arm = np.asarray(pivot, dtype=np.float64) - np.asarray(pose[:2], dtype=np.float64)
     m = np.array([[1.0, 0.0, -arm[1]], [0.0, 1.0, arm[0]], [0.0, 0.0, 1.0]])
     return m @ cov @ m.T
-
-
-def scans_digest(scans: Sequence[RangeScan]) -> str:
-    """A content key of scans (their echoes, bearings, yaw and depth), for the cache of fits."""
-    h = hashlib.blake2b(digest_size=16)
-    for scan in scans:
-        h.update(np.ascontiguousarray(scan.ranges_m).tobytes())
-        h.update(np.ascontiguousarray(scan.bearings_rad).tobytes())
-        h.update(np.array([scan.yaw_rad, scan.depth_m, scan.max_range_m, scan.beam_width_rad]).tobytes())
-    return h.hexdigest()
-
-
-class FitCache:
-    """Fits of group pairs (with whatever a caller keeps beside them), keyed by the scans' content and
-    their poses within each group (:func:`pose_key`): site-graph solves the same groups again in every
-    round of matches, and a hit builds nothing."""
-
-    def __init__(self, size: int = 256):
-        self.size = size
-        self.items: OrderedDict[tuple, object] = OrderedDict()
-
-    def get(self, key: tuple, compute):
-        if key in self.items:
-            self.items.move_to_end(key)
-            return self.items[key]
-        value = compute()
-        self.items[key] = value
-        if len(self.items) > self.size:
-            self.items.popitem(last=False)
-        return value
 
 
 def pose_key(poses: Sequence[np.ndarray]) -> bytes:

@@ -17,7 +17,8 @@ from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
 from cistern_plugins.factor_graph import Edge
 from cistern_plugins.group_clouds import Cloud, wall_spread
-from cistern_plugins.group_fit import FitCache, GroupFit, about, accept, fit_groups, pose_key, scans_digest
+from cistern_plugins.content_cache import ContentCache, scans_digest
+from cistern_plugins.group_fit import GroupFit, about, accept, fit_groups, pose_key
 
 if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
@@ -241,7 +242,7 @@ def largest_group(graph: Graph) -> int:
     return max(sizes, key=lambda g: (sizes[g], -min(graph.members(g))))
 
 
-FITS = FitCache()
+FITS = ContentCache()
 """Group fits already computed (site-graph solves the same groups again in every round)."""
 
 
