@@ -8,6 +8,7 @@ stay reproducible.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import TypeVar
@@ -30,19 +31,24 @@ def scans_digest(scans: Sequence[RangeScan]) -> str:
 
 
 class ContentCache:
-    """The last ``size`` results, least recently used first out."""
+    """The last ``size`` results, least recently used first out; safe to share between threads (a Dask
+    worker may build several sites at once): a result two threads both miss is computed twice, the
+    same."""
 
     def __init__(self, size: int = 256):
         self.size = size
         self.items: OrderedDict[tuple, object] = OrderedDict()
+        self._lock = threading.Lock()
 
     def get(self, key: tuple, compute: Callable[[], T]) -> T:
         """The result kept under ``key``, else ``compute()`` (kept)."""
-        if key in self.items:
-            self.items.move_to_end(key)
-            return self.items[key]  # type: ignore[return-value]
+        with self._lock:
+            if key in self.items:
+                self.items.move_to_end(key)
+                return self.items[key]  # type: ignore[return-value]
         value = compute()
-        self.items[key] = value
-        if len(self.items) > self.size:
-            self.items.popitem(last=False)
+        with self._lock:
+            self.items[key] = value
+            if len(self.items) > self.size:
+                self.items.popitem(last=False)
         return value
