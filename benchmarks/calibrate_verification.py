@@ -29,7 +29,8 @@ from cistern_archive.evaluation import in_compass_frame, wilson_interval
 from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import match_pair, resolve_stage, segment_scan
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
-from cistern_plugins.registration import ReferenceModel
+from cistern_plugins.alignment import ConvergenceThresholds
+from cistern_plugins.registration import ConvergenceParams, ReferenceModel
 from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, features
 
 MATCHERS = ("correlative", "icp")
@@ -138,6 +139,24 @@ def rates(model: Calibration, x: np.ndarray, y: np.ndarray) -> dict:
             "false_match_rate": fp / neg if neg else None, "false_match_rate_ci95": wilson_interval(fp, neg)}
 
 
+def hard_limit_rates(model: Calibration, x: np.ndarray, y: np.ndarray, max_weak_std_m: float,
+                     limits: ConvergenceThresholds) -> dict:
+    """The rates of :func:`rates` once the hard limits a matcher applies besides the model are applied
+    too (``min_inliers``, ``min_constraint``) with ``max_weak_std_m`` as the weak-direction limit."""
+    d = limits.inlier_distance_m
+    column = {name: k for k, name in enumerate(FEATURES)}
+    weak = d * 10.0 ** x[:, column["log_weak_std"]]
+    inliers = 10.0 ** x[:, column["log_inliers"]]
+    hard = (weak <= max_weak_std_m) & (inliers >= limits.min_inliers - 0.5) & (x[:, column["constraint"]] >= limits.min_constraint)
+    out = rates(model, x[hard], y[hard])
+    out["correct"], out["wrong"] = int((y == 1).sum()), int((y == 0).sum())
+    out["accept_rate"] = out["correct_accepted"] / out["correct"] if out["correct"] else None
+    out["accept_rate_ci95"] = wilson_interval(out["correct_accepted"], out["correct"])
+    out["false_match_rate"] = out["wrong_accepted"] / out["wrong"] if out["wrong"] else None
+    out["false_match_rate_ci95"] = wilson_interval(out["wrong_accepted"], out["wrong"])
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=100, help="overlapping pairs per seed (and half as many without)")
@@ -147,6 +166,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--false-match-rate", type=float, default=0.01)
     ap.add_argument("--segmentation", default=None, help="segmentation method (default: the records' default)")
     ap.add_argument("--write", action="store_true", help=f"write the model to {CALIBRATION_FILE.name}")
+    ap.add_argument("--weak-std-limit", type=float, action="append", default=[],
+                    help="also report the rates with this weak-direction limit (m) and the other hard limits "
+                         "of the matchers' defaults (repeatable)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -167,11 +189,15 @@ def main(argv: list[str] | None = None) -> int:
     x_test, y_test = labelled_fits(draw_pairs(args.pairs, args.seed, args.segmentation) + site_pairs(args.sites, args.seed))
     out = {"model": model.to_json(), "tune": rates(model, x_tune, y_tune), "test": rates(model, x_test, y_test),
            "seconds": round(time.perf_counter() - t0, 1)}
-    for name in ("tune", "test"):
+    defaults = ConvergenceParams().limits()
+    for limit in args.weak_std_limit:
+        for name, (x, y) in (("tune", (x_tune, y_tune)), ("test", (x_test, y_test))):
+            out[f"{name} weak std <= {limit:g} m"] = hard_limit_rates(model, x, y, limit, defaults)
+    for name in [key for key in out if key.startswith(("tune", "test"))]:
         r = out[name]
         lo, hi = r["false_match_rate_ci95"]
         alo, ahi = r["accept_rate_ci95"]
-        print(f"{name:5s}: correct accepted {r['correct_accepted']}/{r['correct']} "
+        print(f"{name}: correct accepted {r['correct_accepted']}/{r['correct']} "
               f"({100 * r['accept_rate']:.1f} %, 95 % CI {100 * alo:.1f}–{100 * ahi:.1f}); wrong accepted "
               f"{r['wrong_accepted']}/{r['wrong']} ({100 * r['false_match_rate']:.2f} %, CI {100 * lo:.2f}–{100 * hi:.2f})")
     print("weights", dict(zip(FEATURES, np.round(weights, 3))), "bias", round(bias, 3), "threshold", round(threshold, 3))
