@@ -31,7 +31,7 @@ from cistern_archive.pipeline.runner import match_pair, resolve_stage, segment_s
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_plugins.alignment import ConvergenceThresholds
 from cistern_plugins.registration import ConvergenceParams, ReferenceModel
-from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, features
+from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, calibration, features
 
 MATCHERS = ("correlative", "icp")
 OPEN_LIMITS = {"calibrated": False, "min_inliers": 3, "min_inlier_ratio": 0.0, "min_constraint": 0.0,
@@ -189,10 +189,13 @@ def main(argv: list[str] | None = None) -> int:
     x_test, y_test = labelled_fits(draw_pairs(args.pairs, args.seed, args.segmentation) + site_pairs(args.sites, args.seed))
     out = {"model": model.to_json(), "tune": rates(model, x_tune, y_tune), "test": rates(model, x_test, y_test),
            "seconds": round(time.perf_counter() - t0, 1)}
+    in_use = calibration()
+    out["tune, model in use"], out["test, model in use"] = rates(in_use, x_tune, y_tune), rates(in_use, x_test, y_test)
     defaults = ConvergenceParams().limits()
     for limit in args.weak_std_limit:
         for name, (x, y) in (("tune", (x_tune, y_tune)), ("test", (x_test, y_test))):
             out[f"{name} weak std <= {limit:g} m"] = hard_limit_rates(model, x, y, limit, defaults)
+            out[f"{name}, model in use, weak std <= {limit:g} m"] = hard_limit_rates(in_use, x, y, limit, defaults)
     for name in [key for key in out if key.startswith(("tune", "test"))]:
         r = out[name]
         lo, hi = r["false_match_rate_ci95"]
