@@ -92,7 +92,8 @@ def test_summary_has_wilson_intervals_beside_the_rates():
 
 
 def test_open3d_point_to_plane_recovers_a_planar_pose():
-    pytest.importorskip("open3d", reason="the peers extra (open3d) is not installed or does not load")
+    pytest.importorskip("open3d", reason="the peers extra (open3d) is not installed or does not load (a missing "
+                        "system library, e.g. libusb, raises ImportError)", exc_type=ImportError)
     from cistern_archive.simulation.pairs import simulated_pair
 
     peer = matchers.Open3DPointToPlane()

@@ -48,7 +48,10 @@ def _polyline_points(waypoints: np.ndarray, step: float) -> tuple[np.ndarray, np
     idx = np.clip(np.searchsorted(cumulative, s, side="right") - 1, 0, len(seg) - 1)
     t = (s - cumulative[idx]) / np.where(lengths[idx] > 0, lengths[idx], 1.0)
     points = waypoints[idx] + t[:, None] * seg[idx]
-    return points, np.arctan2(seg[idx, 1], seg[idx, 0])
+    # math.atan2 (the C library's, correctly rounded) rather than numpy's, whose vectorised kernels differ
+    # in the last bit between CPUs (AVX-512 or not): a station's heading is written into its scan file.
+    headings = np.array([math.atan2(dy, dx) for dx, dy in seg[idx]], dtype=np.float64)
+    return points, headings
 
 
 def plan_route(route: RouteSpec, spec: SimulationSpec, rng: np.random.Generator) -> list[TruePose]:
