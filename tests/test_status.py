@@ -9,7 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from cistern_archive.pipeline.status import MAX_PROBE_STD_M, label_indices, site_status, weakness
+import numpy as np
+
+from cistern_archive.core.grids import EvidenceGrid
+from cistern_archive.grid.lean import wall_lean_deg
+from cistern_archive.pipeline.status import MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, label_indices, site_status, weakness
 from service_helpers import CLI, make_catalog
 
 
@@ -38,6 +42,28 @@ def test_weak_when_fewer_than_half_the_probes_or_a_wide_spread():
     assert "2 of 10 probes" in weakness(2, 10, 0.05)
     assert f"above {MAX_PROBE_STD_M:.2f} m" in weakness(10, 10, MAX_PROBE_STD_M + 0.01)
     assert weakness(1, 1, None) == ""  # a single requested probe has no spread to judge
+
+
+def _room(half_width_m: float, depth_m: float) -> EvidenceGrid:
+    """A slice of a square room centred on the origin: walls (log-odds +4) at ``±half_width_m``, water inside."""
+    cell = 0.05
+    n = 200  # 10 m square from (-5, -5)
+    centres = -5.0 + (np.arange(n) + 0.5) * cell
+    x, y = np.meshgrid(centres, centres)
+    reach = np.maximum(np.abs(x), np.abs(y))
+    log_odds = np.where(reach < half_width_m, -4.0, np.where(reach < half_width_m + 2 * cell, 4.0, 0.0))
+    return EvidenceGrid(log_odds.astype(np.float32), (-5.0, -5.0), cell, depth_m)
+
+
+def test_walls_leaning_between_depth_slices_make_a_dimension_weak():
+    probe = [(-2.0, 0.3, 2.0, 0.3)]  # wall to wall across the slice at 1 m
+    leaning = [_room(2.0, 1.0), _room(3.0, 2.0)]  # each wall 1 m farther out 1 m deeper: 45°
+    assert abs(wall_lean_deg(leaning, 1.0, probe) - 45.0) < 3.0
+    upright = [_room(2.0, 1.0), _room(2.0, 2.0)]
+    assert wall_lean_deg(upright, 1.0, probe) < 3.0
+    assert wall_lean_deg(leaning[:1], 1.0, probe) is None  # one depth: nothing to compare with
+    assert "lean about 45°" in weakness(10, 10, 0.05, 45.0)
+    assert weakness(10, 10, 0.05, MAX_WALL_LEAN_DEG - 1) == ""
 
 
 def test_reasons_name_stations_not_indices():

@@ -12,6 +12,8 @@ import numpy as np
 from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, SiteRecord
+from cistern_archive.core.grids import EvidenceGrid
+from cistern_archive.grid.lean import wall_lean_deg
 from cistern_archive.pipeline.contracts import DimensionRow, MatchGuess, Poses
 from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.results import (
@@ -71,8 +73,9 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         for m in build.matches
     ]
     if build.table is not None:
+        grids = build.map_result.grids if build.map_result is not None else ()
         result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels,
-                                              cell_m=_cell_at(build, row.depth_m), poses=poses)
+                                              cell_m=_cell_at(build, row.depth_m), poses=poses, grids=grids)
                              for k, row in enumerate(build.table.rows)]
         result.dimension_stats = {k: finite_or_none(v) for k, v in sorted(build.table.stats.items())}
     if build.map_result is not None:
@@ -114,12 +117,15 @@ def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
 
 
 def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *, cell_m: float | None = None,
-                     poses: Poses | None = None) -> DimensionResult:
-    """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`)
-    and with its 95 % interval (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of
-    ``cell_m``) when it is measured."""
+                     poses: Poses | None = None, grids: Sequence[EvidenceGrid] = ()) -> DimensionResult:
+    """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`,
+    with the lean of its walls between the depth slices ``grids``) and with its 95 % interval
+    (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of ``cell_m``) when it is
+    measured."""
     map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
-    weak = weakness(len(row.probes), requested, std) if map_m is not None else ""
+    lean = wall_lean_deg(grids, row.depth_m, [line for line in row.probe_lines if line is not None]) \
+        if map_m is not None else None
+    weak = weakness(len(row.probes), requested, std, lean) if map_m is not None else ""
     ci = None if map_m is None or cell_m is None else ci95_half_width(
         row.probes, cell_m, [line for line in row.probe_lines if line is not None], poses)
     return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
