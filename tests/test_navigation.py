@@ -252,13 +252,17 @@ def test_nav_graph_proposes_revisits_from_the_corrected_solution():
     along = [MatchResult(i=i, j=j, dx_m=float(truth[j, 0] - truth[i, 0]), dy_m=float(truth[j, 1] - truth[i, 1]),
                          dyaw_rad=0.0, weight=1.0, converged=True, iterations=1, seconds=0.0,
                          covariance=np.diag([1e-4, 1e-4, 1e-6])) for i, j in [(q, q + 2) for q in range(18)]]
-    revisits = localizer.guided_pairs(scans, along, params)
-    assert revisits and all(j - i >= 6 and (i, j) not in {(m.i, m.j) for m in along} for i, j, _ in revisits)
+    asked = localizer.guided_pairs(scans, along, params)
+    revisits = [(i, j, guess) for i, j, guess in asked if j - i >= 6]
+    assert revisits and all((i, j) not in {(m.i, m.j) for m in along} for i, j, _ in revisits)
     far_end = [(i, j) for i, j, _ in revisits if j >= 16]
     assert far_end and all(abs((19 - j) - i) <= 1 for i, j in far_end)  # the same place, found despite the drift
     closed = [MatchResult(i=i, j=j, dx_m=0.0, dy_m=0.5, dyaw_rad=0.0, weight=1.0, converged=True, iterations=1,
                           seconds=0.0) for i, j, _ in revisits]
-    assert not {j for _, j, _ in localizer.guided_pairs(scans, along + closed, params)} & {j for _, j in far_end}
+    again = localizer.guided_pairs(scans, along + closed, params)
+    assert not {j for i, j, _ in again if j - i >= 6 and (i, j) not in {(m.i, m.j) for m in closed}} & {j for _, j in far_end}
+    nearest_only = localizer.guided_pairs(scans, along, params.model_copy(update={"revisit_per_scan": 0}))
+    assert len({j for _, j, _ in nearest_only}) == len(nearest_only) < len(asked)  # loop_per_scan 1, no revisits
 
 
 def test_nav_graph_gate_drops_a_wrong_loop_and_needs_odometry():

@@ -25,8 +25,9 @@ proposes loop-closure candidates from the solution of the first round: for each 
 scans at least ``loop_min_gap`` away whose solved positions lie within ``loop_radius_m`` (the nearest
 ``loop_per_scan``), each with a :class:`~cistern_archive.pipeline.contracts.MatchGuess` of their solved
 relative pose and a window of ``loop_window_sigma`` standard deviations of the odometry between them
-(clamped to ``[loop_window_min_m, loop_window_max_m]``). The later rounds (the runner asks again while
-new pairs come) look for revisits around the solution of every match so far: each scan without a
+(clamped to ``[loop_window_min_m, loop_window_max_m]``). The runner asks again while new pairs come;
+every round proposes the nearest earlier scans of the current solution, and the later rounds also look
+for revisits around the solution of every match so far: each scan without a
 converged match to a scan at least ``revisit_gap`` back, and with fewer than ``revisit_tries`` such
 pairs tried, gets its ``revisit_per_scan`` nearest untried ones within ``loop_radius_m``. The first
 round's solution is the odometry's, whose drift between two visits of a place (several metres) can
@@ -259,17 +260,16 @@ class NavGraphLocalizer(GuidedLocalizer):
 
     def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
                      ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
-        """Loop-closure candidates from the solution of the matches so far (module docstring): the first
-        guided round proposes each scan's nearest earlier scans, later rounds the revisits."""
+        """Loop-closure candidates from the solution of the matches so far (module docstring): every
+        round proposes each scan's nearest earlier scans (pairs asked before are not matched again),
+        later rounds the revisits too."""
         p = NavGraphParams.of(params)
         if p.loop_per_scan == 0:
             return []
         nodes, values, _, _ = solve(scans, matches, p)
-        tried = {(m.i, m.j) for m in matches}
-        if not any(j - i >= p.loop_min_gap for i, j in tried):
-            chosen = _nearest_earlier(scans, nodes, values, p.loop_min_gap, p.loop_per_scan, p.loop_radius_m, set())
-        else:
-            chosen = _revisits(scans, nodes, values, matches, p)
+        chosen = _nearest_earlier(scans, nodes, values, p.loop_min_gap, p.loop_per_scan, p.loop_radius_m, set())
+        if any(m.j - m.i >= p.loop_min_gap for m in matches):
+            chosen += [pair for pair in _revisits(scans, nodes, values, matches, p) if pair not in set(chosen)]
         return [(nodes[a], nodes[b], _loop_guess(scans, nodes, values, a, b, p)) for a, b in chosen]
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
