@@ -269,7 +269,8 @@ class NavGraphLocalizer(GuidedLocalizer):
         nodes, values, _, _ = solve(scans, matches, p)
         chosen = _nearest_earlier(scans, nodes, values, p.loop_min_gap, p.loop_per_scan, p.loop_radius_m, set())
         if any(m.j - m.i >= p.loop_min_gap for m in matches):
-            chosen += [pair for pair in _revisits(scans, nodes, values, matches, p) if pair not in set(chosen)]
+            asked = set(chosen)
+            chosen += [pair for pair in _revisits(scans, nodes, values, matches, p) if pair not in asked]
         return [(nodes[a], nodes[b], _loop_guess(scans, nodes, values, a, b, p)) for a, b in chosen]
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
