@@ -48,6 +48,7 @@ from cistern_archive.navigation.survey import load_marina_survey  # noqa: E402
 from cistern_archive.sonar.readers.pcd import read_points  # noqa: E402
 
 from cistern_archive.navigation.records import PUBLISHED_TABLE2 as PUBLISHED  # noqa: E402
+from cistern_archive.sonar.marina import SONAR_MOUNT_DEG  # noqa: E402
 
 
 def _rows(survey, run) -> dict[str, dict]:
@@ -179,6 +180,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"calibration (first {run.calibration.window_s:.0f} s of DGPS): {run.calibration.as_dict()}")
     print("clock offset (added to sonar times), consecutive-overlap score: "
           + ", ".join(f"{o:+.2f} s: {s:.3f}" for o, s in run.clock_scores) + f" -> {run.clock_offset_s:+.2f} s")
+    if run.mount_scores:
+        print(f"sonar mount correction (added to {SONAR_MOUNT_DEG:.0f}°), overlap of revolutions "
+              f"{config.mount_gap} apart: " + ", ".join(f"{o:+.0f}°: {s:.3f}" for o, s in run.mount_scores)
+              + f" -> {run.mount_offset_deg:+.2f}°")
     print("timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in run.timings_s.items()) + f", total {seconds:.1f} (CPU {cpu_seconds:.1f})")
     if not args.no_figures:
         for path in _figures(survey, run, config, args.data, args.figures):
@@ -192,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
             "dead_reckoning_calibrated": rows["dead reckoning, calibrated (first 300 s)"]["start_aligned"].as_dict(),
             "pipeline_halves_mean_m": [round(v, 3) for v in _halves(pipe)],
             "clock_offset_s": run.clock_offset_s,
+            "mount_offset_deg": round(run.mount_offset_deg, 2),
             "revolutions": len(run.scans),
             "seconds": round(seconds, 1),
             "cpu_seconds": round(cpu_seconds, 1),

@@ -10,7 +10,7 @@ import pytest
 
 from cistern_archive.navigation.accuracy import evaluate_track, rigid_errors, start_aligned_errors
 from cistern_archive.navigation.calibration import fit_start_calibration
-from cistern_archive.navigation.conventions import Convention, Revolution, best_of
+from cistern_archive.navigation.conventions import Convention, Revolution, best_of, peak_of
 from cistern_archive.navigation.correction import corrected_positions
 from cistern_archive.navigation.motion import compensate, inverse_transform_points, scan_echoes
 from cistern_archive.navigation.track import dead_reckon, se2_between
@@ -158,6 +158,21 @@ def test_clock_offset_and_mirror_are_recovered_from_consecutive_overlap():
     assert mirror.mirrored
 
 
+def test_mount_is_recovered_from_the_overlap_of_revolutions_apart():
+    track, revolutions = _synthetic_revolutions(true_offset_s=1.0)
+    offsets = [-12.0, -6.0, 0.0, 6.0, 12.0]
+    candidates = [Convention(clock_offset_s=1.0, mount_deg=o) for o in offsets]
+    _, scored = best_of(revolutions, track, candidates, radius_m=0.2, gap=2)
+    assert abs(peak_of(offsets, [score for _, score in scored])) < 3.0, scored
+
+
+def test_peak_of_refines_between_samples_and_keeps_an_edge():
+    xs = [-4.0, -2.0, 0.0, 2.0, 4.0]
+    assert peak_of(xs, [-(x - 0.7) ** 2 for x in xs]) == pytest.approx(0.7)
+    assert peak_of(xs, [1.0, 2.0, 3.0, 4.0, 5.0]) == 4.0
+    assert peak_of(xs, [0.0, 1.0, 1.0, 0.5, 0.0]) == pytest.approx(-1.0)  # between two equal best samples
+
+
 def test_start_calibration_recovers_offset_and_scale():
     t = np.linspace(0.0, 400.0, 4001)
     yaw = 0.3 * np.sin(t / 40.0)
@@ -219,6 +234,35 @@ def test_nav_graph_pulls_drifting_odometry_onto_a_loop_closure():
     guided = localizer.guided_pairs(scans, [], NavGraphParams(loop_min_gap=3, loop_radius_m=5.0))
     assert [(i, j) for i, j, _ in guided] == [(0, 4)]
     assert isinstance(guided[0][2], MatchGuess) and guided[0][2].dy_m == pytest.approx(0.55, abs=1e-6)
+
+
+def test_nav_graph_proposes_revisits_from_the_corrected_solution():
+    """Later rounds look for revisits around the solution of the matches so far, not the odometry's."""
+    from cistern_plugins.nav_graph import NavGraphLocalizer, NavGraphParams
+
+    east = [[2.0 * k, 0.0] for k in range(10)]
+    truth = np.array(east + [[18.0 - 2.0 * k, 0.5] for k in range(10)])  # out and back, 0.5 m apart
+    odometry = np.column_stack([truth + np.array([[0.0, 0.4 * max(0, k - 9)] for k in range(20)]), np.zeros(20)])
+    scans = _nav_scans(odometry)  # the way back drifts north by 0.4 m per scan
+    params = NavGraphParams(loop_min_gap=2, loop_per_scan=1, loop_radius_m=3.0, revisit_gap=6, revisit_tries=2,
+                            min_match_sigma_m=0.01, sigma_v_mps=0.3)
+    localizer = NavGraphLocalizer()
+    first = localizer.guided_pairs(scans, [], params)
+    assert first and all(j - i >= 2 for i, j, _ in first)
+    along = [MatchResult(i=i, j=j, dx_m=float(truth[j, 0] - truth[i, 0]), dy_m=float(truth[j, 1] - truth[i, 1]),
+                         dyaw_rad=0.0, weight=1.0, converged=True, iterations=1, seconds=0.0,
+                         covariance=np.diag([1e-4, 1e-4, 1e-6])) for i, j in [(q, q + 2) for q in range(18)]]
+    asked = localizer.guided_pairs(scans, along, params)
+    revisits = [(i, j, guess) for i, j, guess in asked if j - i >= 6]
+    assert revisits and all((i, j) not in {(m.i, m.j) for m in along} for i, j, _ in revisits)
+    far_end = [(i, j) for i, j, _ in revisits if j >= 16]
+    assert far_end and all(abs((19 - j) - i) <= 1 for i, j in far_end)  # the same place, found despite the drift
+    closed = [MatchResult(i=i, j=j, dx_m=0.0, dy_m=0.5, dyaw_rad=0.0, weight=1.0, converged=True, iterations=1,
+                          seconds=0.0) for i, j, _ in revisits]
+    again = localizer.guided_pairs(scans, along + closed, params)
+    assert not {j for i, j, _ in again if j - i >= 6 and (i, j) not in {(m.i, m.j) for m in closed}} & {j for _, j in far_end}
+    nearest_only = localizer.guided_pairs(scans, along, params.model_copy(update={"revisit_per_scan": 0}))
+    assert len({j for _, j, _ in nearest_only}) == len(nearest_only) < len(asked)  # loop_per_scan 1, no revisits
 
 
 def test_nav_graph_gate_drops_a_wrong_loop_and_needs_odometry():

@@ -52,14 +52,19 @@ def place_revolution(rev: Revolution, track: Track, conv: Convention) -> np.ndar
 
 
 def consecutive_overlap(revolutions: dict[int, Revolution], track: Track, conv: Convention, *,
-                        radius_m: float = 0.4) -> float:
-    """Mean over key frames ``k`` with ``k+1`` present of the overlap fraction (module docstring)."""
+                        radius_m: float = 0.4, gap: int = 1) -> float:
+    """Mean over key frames ``k`` with ``k+gap`` present of the overlap fraction (module docstring).
+
+    ``gap`` > 1 compares revolutions farther apart: a wrong mount angle ``e`` misplaces the echoes of
+    two revolutions seen from positions ``d`` apart by about ``e * d`` relative to each other, so a
+    longer baseline measures the mount more sharply (dead reckoning must still hold over it).
+    """
     scores = []
     for k in sorted(revolutions):
-        if k + 1 not in revolutions:
+        if k + gap not in revolutions:
             continue
         a = place_revolution(revolutions[k], track, conv)
-        b = place_revolution(revolutions[k + 1], track, conv)
+        b = place_revolution(revolutions[k + gap], track, conv)
         distance, _ = cKDTree(a).query(b, distance_upper_bound=radius_m)
         scores.append(float(np.mean(distance < radius_m)))
     if not scores:
@@ -68,8 +73,23 @@ def consecutive_overlap(revolutions: dict[int, Revolution], track: Track, conv: 
 
 
 def best_of(revolutions: dict[int, Revolution], track: Track, candidates: list[Convention], *,
-            radius_m: float = 0.4) -> tuple[Convention, list[tuple[Convention, float]]]:
+            radius_m: float = 0.4, gap: int = 1) -> tuple[Convention, list[tuple[Convention, float]]]:
     """The candidate with the highest :func:`consecutive_overlap`, and every candidate's score."""
-    scored = [(c, consecutive_overlap(revolutions, track, c, radius_m=radius_m)) for c in candidates]
+    scored = [(c, consecutive_overlap(revolutions, track, c, radius_m=radius_m, gap=gap)) for c in candidates]
     best = max(scored, key=lambda cs: cs[1])[0]
     return best, scored
+
+
+def peak_of(values: list[float], scores: list[float]) -> float:
+    """The maximum of a score sampled on an evenly spaced grid, refined by the parabola through the
+    best sample and its two neighbours (the best sample itself when it lies on the grid's edge or the
+    three are not concave)."""
+    k = int(np.argmax(scores))
+    if k == 0 or k == len(values) - 1:
+        return float(values[k])
+    left, mid, right = scores[k - 1], scores[k], scores[k + 1]
+    curvature = left - 2.0 * mid + right
+    if curvature >= 0:
+        return float(values[k])
+    step = 0.5 * (values[k + 1] - values[k - 1])
+    return float(values[k] + 0.5 * step * (left - right) / curvature)

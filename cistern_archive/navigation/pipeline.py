@@ -5,7 +5,9 @@ Steps (each a function below, driven by :func:`run_survey`):
 1. dead reckoning from the DVL and the MTi (:mod:`.track`), calibrated on DGPS of the first
    ``calibration_window_s`` only (:mod:`.calibration`);
 2. the sonar-to-navigation clock offset, the candidate with the best consecutive-scan overlap
-   (:mod:`.conventions`), estimated on the first half of the key frames only;
+   (:mod:`.conventions`), then the sonar's mount angle, the best overlap of revolutions
+   ``mount_gap`` apart around the reader's nominal mount, both estimated on the first half of the key
+   frames only;
 3. every key frame read by the ``marina-pcd`` reader and motion compensated to its mid time
    (:mod:`.motion`);
 4. matching through the plugin registry, as the runner does (:func:`cistern_archive.pipeline.runner.match_rounds`):
@@ -15,6 +17,7 @@ Steps (each a function below, driven by :func:`run_survey`):
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +28,7 @@ from pydantic import Field, model_validator
 from cistern_archive.catalog.models import SurveySettings
 
 from cistern_archive.navigation.calibration import Calibration, fit_start_calibration
-from cistern_archive.navigation.conventions import Convention, Revolution, best_of
+from cistern_archive.navigation.conventions import Convention, Revolution, best_of, peak_of
 from cistern_archive.navigation.correction import corrected_positions
 from cistern_archive.navigation.motion import compensated_range_scan
 from cistern_archive.navigation.survey import MarinaSurvey
@@ -35,7 +38,8 @@ from cistern_archive.pipeline.registry import Registry, default_registry
 from cistern_archive.pipeline.runner import localize, match_pair, match_rounds, resolve_stage
 from cistern_archive.sonar.readers import read_file
 from cistern_archive.sonar.readers.pcd import read_points
-from cistern_archive.core.scan import RangeScan
+from cistern_archive.core.scan import RangeScan, Scan, wrap_angle
+from cistern_archive.sonar import marina
 
 
 class SurveyConfig(SurveySettings):
@@ -72,6 +76,8 @@ class SurveyRun:
     track: Track
     clock_offset_s: float
     clock_scores: list[tuple[float, float]]
+    mount_offset_deg: float
+    mount_scores: list[tuple[float, float]]
     frames: list[int]
     scans: list[RangeScan]
     matches: list[MatchResult]
@@ -102,24 +108,50 @@ def usable_frames(survey: MarinaSurvey, track: Track, offset_s: float) -> list[i
     return frames
 
 
+def first_half_revolutions(survey: MarinaSurvey, frames: list[int], stride: int, gap: int) -> dict[int, Revolution]:
+    """Every ``stride``-th key frame of the first half of ``frames`` and those ``gap`` after it."""
+    first_half = frames[: len(frames) // 2]
+    chosen = set(first_half[::stride])
+    chosen |= {k + gap for k in chosen if k + gap in first_half}
+    return {k: Revolution(read_points(survey.pcd_dir / f"pclKeyFrame{k}.pcd")[0], survey.keyframe_beam_times(k))
+            for k in sorted(chosen)}
+
+
 def estimate_clock_offset(survey: MarinaSurvey, track: Track, frames: list[int], config: SurveyConfig
                           ) -> tuple[float, list[tuple[float, float]]]:
     """The offset (added to sonar times) with the best consecutive overlap on the first half of ``frames``."""
-    first_half = frames[: len(frames) // 2]
-    chosen = set(first_half[::config.clock_stride])
-    chosen |= {k + 1 for k in chosen if k + 1 in first_half}
-    revolutions = {k: Revolution(read_points(survey.pcd_dir / f"pclKeyFrame{k}.pcd")[0], survey.keyframe_beam_times(k))
-                   for k in sorted(chosen)}
+    revolutions = first_half_revolutions(survey, frames, config.clock_stride, 1)
     best, scored = best_of(revolutions, track, [Convention(clock_offset_s=o) for o in config.clock_offsets_s])
     return best.clock_offset_s, [(c.clock_offset_s, s) for c, s in scored]
 
 
+def estimate_mount_offset(survey: MarinaSurvey, track: Track, frames: list[int], clock_offset_s: float,
+                          config: SurveyConfig) -> tuple[float, list[tuple[float, float]]]:
+    """The correction (degrees, added to the reader's nominal sonar mount) with the best overlap of
+    revolutions ``mount_gap`` apart on the first half of ``frames``, refined between the grid's samples
+    (:func:`peak_of`); 0 when no candidates are configured.
+
+    A mount error ``e`` rotates every echo about the vehicle, so a displacement measured by matching
+    two scans comes out rotated by ``e`` against the odometry's: loop closures that span tens of metres
+    then bend the track sideways (a 5° error is 2.6 m across a 30 m loop).
+    """
+    if not config.mount_offsets_deg:
+        return 0.0, []
+    revolutions = first_half_revolutions(survey, frames, config.clock_stride, config.mount_gap)
+    candidates = [Convention(clock_offset_s=clock_offset_s, mount_deg=marina.SONAR_MOUNT_DEG + o)
+                  for o in config.mount_offsets_deg]
+    _, scored = best_of(revolutions, track, candidates, gap=config.mount_gap)
+    offsets, scores = list(config.mount_offsets_deg), [score for _, score in scored]
+    return peak_of(offsets, scores), list(zip(offsets, scores))
+
+
 def compensated_scans(survey: MarinaSurvey, track: Track, frames: list[int], offset_s: float,
-                      config: SurveyConfig) -> list[RangeScan]:
-    """Every key frame read and motion compensated (:func:`compensated_range_scan`), with the echoes of
-    its ``submap_neighbours`` revolutions on either side."""
-    raw = [read_file(survey.pcd_dir / f"pclKeyFrame{k}.pcd", "marina-pcd").scans[0].replace(station=f"kf{k}")
-           for k in frames]
+                      config: SurveyConfig, mount_offset_deg: float = 0.0) -> list[RangeScan]:
+    """Every key frame read, its bearings turned by ``mount_offset_deg`` (:func:`remount`), and motion
+    compensated (:func:`compensated_range_scan`), with the echoes of its ``submap_neighbours``
+    revolutions on either side."""
+    raw = [remount(read_file(survey.pcd_dir / f"pclKeyFrame{k}.pcd", "marina-pcd").scans[0], mount_offset_deg)
+           .replace(station=f"kf{k}") for k in frames]
     w = config.submap_neighbours
     scans = []
     for q, scan in enumerate(raw):
@@ -128,6 +160,13 @@ def compensated_scans(survey: MarinaSurvey, track: Track, frames: list[int], off
                                                echo_position=config.echo_position, companions=companions)
         scans.append(range_scan)
     return scans
+
+
+def remount(scan: Scan, offset_deg: float) -> Scan:
+    """The scan with every body-frame bearing turned by ``offset_deg`` (a corrected sonar mount)."""
+    if offset_deg == 0.0:
+        return scan
+    return scan.replace(bearings_rad=wrap_angle(scan.bearings_rad + math.radians(offset_deg)))
 
 
 def odometry_guess(a: RangeScan, b: RangeScan, radius_m: float) -> MatchGuess:
@@ -151,7 +190,9 @@ def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig(), regi
     offset, clock_scores = estimate_clock_offset(survey, track, frames, config)
     frames = [k for k in frames if k in set(usable_frames(survey, track, offset))]
     timings["clock"] = time.perf_counter() - start - sum(timings.values())
-    scans = compensated_scans(survey, track, frames, offset, config)
+    mount, mount_scores = estimate_mount_offset(survey, track, frames, offset, config)
+    timings["mount"] = time.perf_counter() - start - sum(timings.values())
+    scans = compensated_scans(survey, track, frames, offset, config, mount)
     timings["scans"] = time.perf_counter() - start - sum(timings.values())
     registry = registry or default_registry()
     matcher = resolve_stage(registry, "matcher", config.matcher, config.matcher_params)
@@ -166,7 +207,7 @@ def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig(), regi
     poses = localize(localizer, scans, matches)
     timings["localizer"] = time.perf_counter() - start - sum(timings.values())
     return SurveyRun(raw_track=raw, calibration=calibration, track=track, clock_offset_s=offset,
-                     clock_scores=clock_scores, frames=frames, scans=scans, matches=matches, poses=poses,
+                     clock_scores=clock_scores, mount_offset_deg=mount, mount_scores=mount_scores, frames=frames, scans=scans, matches=matches, poses=poses,
                      timings_s=timings)
 
 

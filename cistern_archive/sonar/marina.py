@@ -25,7 +25,11 @@ marina"); the measured conventions score 0.643, and
   i.e. at ``+j * 1.8°`` counter-clockwise once un-mirrored; clockwise order: 0.210, first beam at
   90°: 0.259; one time for the whole revolution (no motion compensation): 0.360.
 * **Mount** (:data:`SONAR_MOUNT_DEG`): the sonar's zero bearing points 240° counter-clockwise from
-  the DVL's x axis (216°: 0.509, 264°: 0.555).
+  the DVL's x axis (216°: 0.509, 264°: 0.555). On a finer grid the overlap peaks near 245° (242°:
+  0.650, 244°: 0.655, 246°: 0.654, 248°: 0.648), and revolutions three apart, which see the mount
+  more sharply, peak near 244.5° (240°: 0.474, 244°: 0.500, 246°: 0.495); the issue's −114° is 246°.
+  The reader keeps 240° as the nominal mount; the survey pipeline estimates the correction on the
+  first half of each run (:func:`cistern_archive.navigation.pipeline.estimate_mount_offset`).
 * **Compass offset** (:data:`MTI_COMPASS_OFFSET_DEG`): body heading = MTi yaw − 22°, the offset that
   best fits dead reckoning to the first 300 s of DGPS (−22.55°; the DVL's own compass reads about 4°
   lower still). A constant compass offset turns the whole dead-reckoned track rigidly, so the overlap

@@ -25,7 +25,13 @@ proposes loop-closure candidates from the solution of the first round: for each 
 scans at least ``loop_min_gap`` away whose solved positions lie within ``loop_radius_m`` (the nearest
 ``loop_per_scan``), each with a :class:`~cistern_archive.pipeline.contracts.MatchGuess` of their solved
 relative pose and a window of ``loop_window_sigma`` standard deviations of the odometry between them
-(clamped to ``[loop_window_min_m, loop_window_max_m]``).
+(clamped to ``[loop_window_min_m, loop_window_max_m]``). The runner asks again while new pairs come;
+every round proposes the nearest earlier scans of the current solution, and the later rounds also look
+for revisits around the solution of every match so far: each scan without a
+converged match to a scan at least ``revisit_gap`` back, and with fewer than ``revisit_tries`` such
+pairs tried, gets its ``revisit_per_scan`` nearest untried ones within ``loop_radius_m``. The first
+round's solution is the odometry's, whose drift between two visits of a place (several metres) can
+put the place outside the search window; the matches along the track remove most of that drift.
 
 Ambiguity gate: after solving, the match whose squared Mahalanobis residual is largest is dropped while
 it exceeds ``gate_chi2`` (up to ``gate_rounds`` times), then the graph is solved again — robust kernels
@@ -75,6 +81,9 @@ class NavGraphParams(StageParams):
     loop_window_sigma: float = Field(3.0, gt=0)
     loop_window_min_m: float = Field(1.0, gt=0)
     loop_window_max_m: float = Field(5.0, gt=0)
+    revisit_gap: int = Field(15, ge=2)
+    revisit_per_scan: int = Field(1, ge=0)
+    revisit_tries: int = Field(3, ge=1)
     gate_chi2: float = Field(16.27, gt=0)
     gate_rounds: int = Field(20, ge=0)
     max_iterations: int = Field(100, ge=1)
@@ -251,31 +260,18 @@ class NavGraphLocalizer(GuidedLocalizer):
 
     def guided_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
                      ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
-        """Loop-closure candidates from the first round's solution (module docstring)."""
+        """Loop-closure candidates from the solution of the matches so far (module docstring): every
+        round proposes each scan's nearest earlier scans (pairs asked before are not matched again),
+        later rounds the revisits too."""
         p = NavGraphParams.of(params)
         if p.loop_per_scan == 0:
             return []
         nodes, values, _, _ = solve(scans, matches, p)
-        xy = np.array([[values.atPose2(k).x(), values.atPose2(k).y()] for k in nodes])
-        noise = p.odometry_noise()
-        out: list[tuple[int, int, MatchGuess | None]] = []
-        for b_idx, j in enumerate(nodes):
-            earlier = [a for a in range(b_idx) if j - nodes[a] >= p.loop_min_gap]
-            if not earlier:
-                continue
-            dist = np.hypot(*(xy[earlier] - xy[b_idx]).T)
-            order = [earlier[int(q)] for q in np.argsort(dist, kind="stable") if dist[q] <= p.loop_radius_m]
-            for a_idx in order[:p.loop_per_scan]:
-                i = nodes[a_idx]
-                pi, pj = values.atPose2(i), values.atPose2(j)
-                dx, dy = pj.x() - pi.x(), pj.y() - pi.y()
-                travelled = sum(math.hypot(*se2_between(scans[nodes[q]].odometry, scans[nodes[q + 1]].odometry)[:2])
-                                for q in range(a_idx, b_idx))
-                sigma = math.hypot(noise.sigma_scale, noise.sigma_heading_rad) * travelled
-                radius = min(max(p.loop_window_sigma * sigma, p.loop_window_min_m), p.loop_window_max_m)
-                dyaw = float(wrap_angle((pj.theta() - pi.theta()) - (scans[j].yaw_rad - scans[i].yaw_rad)))
-                out.append((i, j, MatchGuess(dx, dy, dyaw, radius)))
-        return out
+        chosen = _nearest_earlier(scans, nodes, values, p.loop_min_gap, p.loop_per_scan, p.loop_radius_m, set())
+        if any(m.j - m.i >= p.loop_min_gap for m in matches):
+            asked = set(chosen)
+            chosen += [pair for pair in _revisits(scans, nodes, values, matches, p) if pair not in asked]
+        return [(nodes[a], nodes[b], _loop_guess(scans, nodes, values, a, b, p)) for a, b in chosen]
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
                  ties: Sequence[VerticalTie] = ()) -> Poses:
@@ -303,6 +299,66 @@ class NavGraphLocalizer(GuidedLocalizer):
             cov[k] = rot @ marginals.marginalCovariance(k) @ rot.T
         reasons = tuple("" if placed[k] else "no odometry for this scan" for k in range(n))
         return Poses(xy, yaw, placed, reasons, nodes[0], cov)
+
+
+def _solved_xy(values: gtsam.Values, nodes: list[int]) -> np.ndarray:
+    return np.array([[values.atPose2(k).x(), values.atPose2(k).y()] for k in nodes])
+
+
+def _nearest_earlier(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values, min_gap: int, per_scan: int,
+                     radius_m: float, skip: set[tuple[int, int]], only: set[int] | None = None) -> list[tuple[int, int]]:
+    """For each node ``b`` (those in ``only``, all when None), the ``per_scan`` nearest earlier nodes ``a``
+    at least ``min_gap`` scans back whose solved positions lie within ``radius_m``, leaving out the
+    scan pairs in ``skip``; as (a, b) indices into ``nodes``."""
+    xy = _solved_xy(values, nodes)
+    out = []
+    for b_idx, j in enumerate(nodes):
+        if only is not None and j not in only:
+            continue
+        earlier = [a for a in range(b_idx) if j - nodes[a] >= min_gap and (nodes[a], j) not in skip]
+        if not earlier:
+            continue
+        dist = np.hypot(*(xy[earlier] - xy[b_idx]).T)
+        order = [earlier[int(q)] for q in np.argsort(dist, kind="stable") if dist[q] <= radius_m]
+        out += [(a_idx, b_idx) for a_idx in order[:per_scan]]
+    return out
+
+
+def _revisits(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values, matches: Sequence[MatchResult],
+              p: NavGraphParams) -> list[tuple[int, int]]:
+    """Revisit candidates of a later round: for each scan without a converged match to a scan at least
+    ``revisit_gap`` back and with fewer than ``revisit_tries`` such pairs tried, the ``revisit_per_scan``
+    nearest untried ones within ``loop_radius_m`` of the current solution.
+
+    The first round's candidates come from the odometry alone, whose drift between revisits (several
+    metres) can exceed the search window; once the matches along the track have corrected it, the
+    same places are found again within the window."""
+    if p.revisit_per_scan == 0:
+        return []
+    tried = {(m.i, m.j) for m in matches}
+    closed = {m.j for m in matches if m.converged and m.j - m.i >= p.revisit_gap}
+    attempts: dict[int, int] = {}
+    for i, j in tried:
+        if j - i >= p.revisit_gap:
+            attempts[j] = attempts.get(j, 0) + 1
+    open_scans = {j for j in nodes if j not in closed and attempts.get(j, 0) < p.revisit_tries}
+    return _nearest_earlier(scans, nodes, values, p.revisit_gap, p.revisit_per_scan, p.loop_radius_m, tried,
+                            only=open_scans)
+
+
+def _loop_guess(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values, a_idx: int, b_idx: int,
+                p: NavGraphParams) -> MatchGuess:
+    """The solved relative pose of nodes ``a_idx`` → ``b_idx`` as a guess, its window ``loop_window_sigma``
+    standard deviations of the odometry between them, clamped to ``[loop_window_min_m, loop_window_max_m]``."""
+    noise = p.odometry_noise()
+    i, j = nodes[a_idx], nodes[b_idx]
+    pi, pj = values.atPose2(i), values.atPose2(j)
+    travelled = sum(math.hypot(*se2_between(scans[nodes[q]].odometry, scans[nodes[q + 1]].odometry)[:2])
+                    for q in range(a_idx, b_idx))
+    sigma = math.hypot(noise.sigma_scale, noise.sigma_heading_rad) * travelled
+    radius = min(max(p.loop_window_sigma * sigma, p.loop_window_min_m), p.loop_window_max_m)
+    dyaw = float(wrap_angle((pj.theta() - pi.theta()) - (scans[j].yaw_rad - scans[i].yaw_rad)))
+    return MatchGuess(pj.x() - pi.x(), pj.y() - pi.y(), dyaw, radius)
 
 
 def calibration_of(values: gtsam.Values) -> dict[str, float]:
