@@ -245,6 +245,7 @@ def test_nav_graph_proposes_revisits_from_the_corrected_solution():
     odometry = np.column_stack([truth + np.array([[0.0, 0.4 * max(0, k - 9)] for k in range(20)]), np.zeros(20)])
     scans = _nav_scans(odometry)  # the way back drifts north by 0.4 m per scan
     params = NavGraphParams(loop_min_gap=2, loop_per_scan=1, loop_radius_m=3.0, revisit_gap=6, revisit_tries=2,
+                            revisit_per_scan=1,
                             min_match_sigma_m=0.01, sigma_v_mps=0.3)
     localizer = NavGraphLocalizer()
     first = localizer.guided_pairs(scans, [], params)

@@ -189,9 +189,10 @@ class SurveySettings(Strict):
     clock_offsets_s: list[float] = Field(default_factory=lambda: [-1.0, -0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0],
                                          min_length=1, description="sonar clock offsets tried")
     clock_stride: int = Field(2, ge=1, description="every n-th key frame scores the clock offsets and mounts")
-    mount_offsets_deg: list[float] = Field(default_factory=lambda: [float(o) for o in range(-10, 11, 2)],
+    mount_offsets_deg: list[float] = Field(default_factory=list,
                                            description="corrections of the sonar's nominal mount angle tried "
-                                                       "(degrees; empty: keep the nominal mount)")
+                                                       "(degrees, e.g. -10 to 10 in steps of 2; empty, the "
+                                                       "default: keep the nominal mount)")
     mount_gap: int = Field(3, ge=1, description="revolutions apart of the scans that score the mount")
     min_range_m: float = Field(1.0, ge=0)
     echo_position: Literal["leading", "centre", "bins"] = "leading"

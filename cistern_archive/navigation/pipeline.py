@@ -5,9 +5,9 @@ Steps (each a function below, driven by :func:`run_survey`):
 1. dead reckoning from the DVL and the MTi (:mod:`.track`), calibrated on DGPS of the first
    ``calibration_window_s`` only (:mod:`.calibration`);
 2. the sonar-to-navigation clock offset, the candidate with the best consecutive-scan overlap
-   (:mod:`.conventions`), then the sonar's mount angle, the best overlap of revolutions
-   ``mount_gap`` apart around the reader's nominal mount, both estimated on the first half of the key
-   frames only;
+   (:mod:`.conventions`), then, when ``mount_offsets_deg`` lists corrections to try (none by default),
+   the sonar's mount angle, the best overlap of revolutions ``mount_gap`` apart around the reader's
+   nominal mount; both estimated on the first half of the key frames only;
 3. every key frame read by the ``marina-pcd`` reader and motion compensated to its mid time
    (:mod:`.motion`);
 4. matching through the plugin registry, as the runner does (:func:`cistern_archive.pipeline.runner.match_rounds`):

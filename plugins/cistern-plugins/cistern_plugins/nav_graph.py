@@ -82,7 +82,7 @@ class NavGraphParams(StageParams):
     loop_window_min_m: float = Field(1.0, gt=0)
     loop_window_max_m: float = Field(5.0, gt=0)
     revisit_gap: int = Field(15, ge=2)
-    revisit_per_scan: int = Field(1, ge=0)
+    revisit_per_scan: int = Field(0, ge=0, description="revisit candidates per scan in later rounds (0: none)")
     revisit_tries: int = Field(3, ge=1)
     gate_chi2: float = Field(16.27, gt=0)
     gate_rounds: int = Field(20, ge=0)
