@@ -147,7 +147,8 @@ def hard_limit_rates(model: Calibration, x: np.ndarray, y: np.ndarray, max_weak_
     column = {name: k for k, name in enumerate(FEATURES)}
     weak = d * 10.0 ** x[:, column["log_weak_std"]]
     inliers = 10.0 ** x[:, column["log_inliers"]]
-    hard = (weak <= max_weak_std_m) & (inliers >= limits.min_inliers - 0.5) & (x[:, column["constraint"]] >= limits.min_constraint)
+    constraint = x[:, column["constraint"]]
+    hard = (weak <= max_weak_std_m) & (inliers >= limits.min_inliers - 0.5) & (constraint >= limits.min_constraint)
     out = rates(model, x[hard], y[hard])
     out["correct"], out["wrong"] = int((y == 1).sum()), int((y == 0).sum())
     out["accept_rate"] = out["correct_accepted"] / out["correct"] if out["correct"] else None
@@ -190,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {"model": model.to_json(), "tune": rates(model, x_tune, y_tune), "test": rates(model, x_test, y_test),
            "seconds": round(time.perf_counter() - t0, 1)}
     in_use = calibration()
-    out["tune, model in use"], out["test, model in use"] = rates(in_use, x_tune, y_tune), rates(in_use, x_test, y_test)
+    out["tune, model in use"] = rates(in_use, x_tune, y_tune)
+    out["test, model in use"] = rates(in_use, x_test, y_test)
     defaults = ConvergenceParams().limits()
     for limit in args.weak_std_limit:
         for name, (x, y) in (("tune", (x_tune, y_tune)), ("test", (x_test, y_test))):

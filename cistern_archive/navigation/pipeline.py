@@ -207,8 +207,8 @@ def run_survey(survey: MarinaSurvey, config: SurveyConfig = SurveyConfig(), regi
     poses = localize(localizer, scans, matches)
     timings["localizer"] = time.perf_counter() - start - sum(timings.values())
     return SurveyRun(raw_track=raw, calibration=calibration, track=track, clock_offset_s=offset,
-                     clock_scores=clock_scores, mount_offset_deg=mount, mount_scores=mount_scores, frames=frames, scans=scans, matches=matches, poses=poses,
-                     timings_s=timings)
+                     clock_scores=clock_scores, mount_offset_deg=mount, mount_scores=mount_scores, frames=frames,
+                     scans=scans, matches=matches, poses=poses, timings_s=timings)
 
 
 def data_root_default() -> Path:

@@ -74,7 +74,8 @@ def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_le
     if probe_std_m is not None and math.isfinite(probe_std_m) and probe_std_m > MAX_PROBE_STD_M:
         reasons.append(f"probe spread {probe_std_m:.2f} m above {MAX_PROBE_STD_M:.2f} m")
     if wall_lean_deg is not None and wall_lean_deg > MAX_WALL_LEAN_DEG:
-        reasons.append(f"its walls lean about {wall_lean_deg:.0f}° from the vertical (above {MAX_WALL_LEAN_DEG:.0f}°): "
+        reasons.append(f"its walls lean about {wall_lean_deg:.0f}° from the vertical "
+                       f"(above {MAX_WALL_LEAN_DEG:.0f}°): "
                        "the sonar's vertical beam hears a leaning wall short, so the map is likely too short")
     return "; ".join(reasons)
 
