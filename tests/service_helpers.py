@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
 import sys
 from pathlib import Path
 
 from cistern_archive.archive.digest import file_sha256
 
 CLI = [sys.executable, "-m", "cistern_archive"]
+
+
+def default_sigint() -> None:
+    """``preexec_fn`` for a child that a test interrupts as a terminal's Ctrl-C would: SIGINT back to its
+    default action. A test run started in the background by a shell without job control inherits SIGINT
+    ignored, and a Python started so never raises KeyboardInterrupt."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 # Reports without the 3D model and the per-pair/per-scan figures render in a fraction of the time;
 # the report has its own tests.
 FAST_REPORT = {"model": False, "pdf": False, "max_pair_figures": 0, "max_fan_figures": 0, "dpi": 50}

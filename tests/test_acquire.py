@@ -23,6 +23,7 @@ from cistern_archive.acquisition.emulator import HeadTiming
 from cistern_archive.acquisition.emulator_server import build_emulator
 from cistern_archive.acquisition.faults import FaultPlan
 from cistern_archive.acquisition.echoes import SimulatedEcho
+from service_helpers import default_sigint
 from tritech_helpers import make_catalog, tiny_catalog  # noqa: F401  (fixture)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -219,7 +220,7 @@ def test_ctrl_c_on_the_command_line_keeps_a_partial_scan(tiny_catalog):
                                            "pool", "--station", "b", "--depth", "1", "--heading", "95",
                                            "--no-archive"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO,
-                                   env=dict(os.environ, COLUMNS="100"))
+                                   env=dict(os.environ, COLUMNS="100"), preexec_fn=default_sigint)
         raw = tiny_catalog / "data" / "pool" / "b.seanet"
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and (not raw.exists() or raw.stat().st_size < 8000):

@@ -107,7 +107,7 @@ def test_recover_removes_unfinished_folders_and_restores_an_interrupted_swap(tmp
 # ------------------------------------------------------------------------- whole-rebuild faults
 from cistern_archive.archive import Archive, verify_archive  # noqa: E402
 from cistern_archive.service.rebuild import rebuild  # noqa: E402
-from service_helpers import CLI, FAST_REPORT, copy_built, make_catalog, report_is_complete  # noqa: E402
+from service_helpers import CLI, FAST_REPORT, copy_built, default_sigint, make_catalog, report_is_complete  # noqa: E402
 
 SITES = ["cistern-000", "cistern-001"]
 
@@ -220,7 +220,7 @@ def test_ctrl_c_stops_the_rebuild_with_exit_130_and_keeps_the_previous_reports(b
     before = {site: _manifest(out / site) for site in SITES}
     command = [*CLI, "rebuild", "--catalog", str(catalog), "--out", str(out), "--force"]
     victim = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
+                              text=True, preexec_fn=default_sigint)
     deadline = time.monotonic() + 120
     while not _leftovers(out):  # a site is being staged
         if time.monotonic() > deadline or victim.poll() is not None:
