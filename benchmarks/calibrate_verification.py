@@ -129,9 +129,12 @@ def threshold_for(probabilities: np.ndarray, labels: np.ndarray, false_match_rat
     return float(np.nextafter(wrong[allowed], 1.0)) if allowed < len(wrong) else 0.0
 
 
-def rates(model: Calibration, x: np.ndarray, y: np.ndarray) -> dict:
+def rates(model: Calibration, x: np.ndarray, y: np.ndarray, passes: np.ndarray | None = None) -> dict:
+    """Right and wrong fits the model accepts (and, with ``passes``, that also pass those tests)."""
     p = np.array([model.probability(f) for f in x])
     accepted = p >= model.threshold
+    if passes is not None:
+        accepted &= passes
     tp, pos = int((accepted & (y == 1)).sum()), int((y == 1).sum())
     fp, neg = int((accepted & (y == 0)).sum()), int((y == 0).sum())
     return {"correct_accepted": tp, "correct": pos, "accept_rate": tp / pos if pos else None,
@@ -149,13 +152,7 @@ def hard_limit_rates(model: Calibration, x: np.ndarray, y: np.ndarray, max_weak_
     inliers = 10.0 ** x[:, column["log_inliers"]]
     constraint = x[:, column["constraint"]]
     hard = (weak <= max_weak_std_m) & (inliers >= limits.min_inliers - 0.5) & (constraint >= limits.min_constraint)
-    out = rates(model, x[hard], y[hard])
-    out["correct"], out["wrong"] = int((y == 1).sum()), int((y == 0).sum())
-    out["accept_rate"] = out["correct_accepted"] / out["correct"] if out["correct"] else None
-    out["accept_rate_ci95"] = wilson_interval(out["correct_accepted"], out["correct"])
-    out["false_match_rate"] = out["wrong_accepted"] / out["wrong"] if out["wrong"] else None
-    out["false_match_rate_ci95"] = wilson_interval(out["wrong_accepted"], out["wrong"])
-    return out
+    return rates(model, x, y, hard)
 
 
 def main(argv: list[str] | None = None) -> int:

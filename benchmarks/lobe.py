@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import yaml
@@ -55,10 +56,10 @@ def score_width(spec_path: Path, width_deg: float) -> dict:
     """Simulate, build and score the site with one vertical beam width."""
     with tempfile.TemporaryDirectory(prefix="lobe-") as tmp:
         catalog = Path(tmp)
-        record_path = simulate_into(with_vertical_beam(spec_path, width_deg, catalog), catalog)
-        row = sites.score_site(record_path, catalog)
-        loaded = load_record(record_path, catalog)
+        loaded = load_record(simulate_into(with_vertical_beam(spec_path, width_deg, catalog), catalog), catalog)
+        start = time.perf_counter()
         build = build_site(loaded)
+        row = sites.score_build(loaded, build, catalog, time.perf_counter() - start)
         model = model3d.score(build, load_spec(loaded.resolve(loaded.record.simulation)))
     return {**{k: row[k] for k in PAIR_KEYS}, **{k: model[k] for k in MODEL_KEYS}}
 

@@ -220,7 +220,12 @@ def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) ->
         return None
     t0 = time.perf_counter()
     build = build_site(loaded)
-    seconds = time.perf_counter() - t0
+    return score_build(loaded, build, catalog, time.perf_counter() - t0, far_limit)
+
+
+def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0) -> dict:
+    """The figures of :func:`score_site` for a site already built (``seconds`` its build time)."""
+    record = loaded.record
     scans = build.range_scans
     if len(scans) < len(record.scans):  # the build failed before every scan was segmented
         return failed_row(record, build, seconds)

@@ -123,11 +123,10 @@ def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *
     (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of ``cell_m``) when it is
     measured."""
     map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
-    lean = wall_lean_deg(grids, row.depth_m, [line for line in row.probe_lines if line is not None]) \
-        if map_m is not None else None
-    weak = weakness(len(row.probes), requested, std, lean) if map_m is not None else ""
-    ci = None if map_m is None or cell_m is None else ci95_half_width(
-        row.probes, cell_m, [line for line in row.probe_lines if line is not None], poses)
+    lines = [line for line in row.probe_lines if line is not None]
+    weak = "" if map_m is None else weakness(len(row.probes), requested, std,
+                                             wall_lean_deg(grids, row.depth_m, lines))
+    ci = None if map_m is None or cell_m is None else ci95_half_width(row.probes, cell_m, lines, poses)
     return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
                            reference_kind=row.reference_kind, diff_m=finite_or_none(row.diff_m),
                            depth_m=finite_or_none(row.depth_m) or 0.0, probe_std_m=std,

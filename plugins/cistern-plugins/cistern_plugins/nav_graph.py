@@ -42,6 +42,7 @@ them all); scans without odometry are returned unplaced with the reason.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from typing import ClassVar
 
@@ -267,10 +268,10 @@ class NavGraphLocalizer(GuidedLocalizer):
         if p.loop_per_scan == 0:
             return []
         nodes, values, _, _ = solve(scans, matches, p)
-        chosen = _nearest_earlier(scans, nodes, values, p.loop_min_gap, p.loop_per_scan, p.loop_radius_m, set())
+        chosen = _nearest_earlier(nodes, values, p.loop_min_gap, p.loop_per_scan, p.loop_radius_m, set())
         if any(m.j - m.i >= p.loop_min_gap for m in matches):
             asked = set(chosen)
-            chosen += [pair for pair in _revisits(scans, nodes, values, matches, p) if pair not in asked]
+            chosen += [pair for pair in _revisits(nodes, values, matches, p) if pair not in asked]
         return [(nodes[a], nodes[b], _loop_guess(scans, nodes, values, a, b, p)) for a, b in chosen]
 
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
@@ -305,8 +306,8 @@ def _solved_xy(values: gtsam.Values, nodes: list[int]) -> np.ndarray:
     return np.array([[values.atPose2(k).x(), values.atPose2(k).y()] for k in nodes])
 
 
-def _nearest_earlier(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values, min_gap: int, per_scan: int,
-                     radius_m: float, skip: set[tuple[int, int]], only: set[int] | None = None) -> list[tuple[int, int]]:
+def _nearest_earlier(nodes: list[int], values: gtsam.Values, min_gap: int, per_scan: int, radius_m: float,
+                     skip: set[tuple[int, int]], only: set[int] | None = None) -> list[tuple[int, int]]:
     """For each node ``b`` (those in ``only``, all when None), the ``per_scan`` nearest earlier nodes ``a``
     at least ``min_gap`` scans back whose solved positions lie within ``radius_m``, leaving out the
     scan pairs in ``skip``; as (a, b) indices into ``nodes``."""
@@ -324,7 +325,7 @@ def _nearest_earlier(scans: Sequence[RangeScan], nodes: list[int], values: gtsam
     return out
 
 
-def _revisits(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values, matches: Sequence[MatchResult],
+def _revisits(nodes: list[int], values: gtsam.Values, matches: Sequence[MatchResult],
               p: NavGraphParams) -> list[tuple[int, int]]:
     """Revisit candidates of a later round: for each scan without a converged match to a scan at least
     ``revisit_gap`` back and with fewer than ``revisit_tries`` such pairs tried, the ``revisit_per_scan``
@@ -337,13 +338,9 @@ def _revisits(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values
         return []
     tried = {(m.i, m.j) for m in matches}
     closed = {m.j for m in matches if m.converged and m.j - m.i >= p.revisit_gap}
-    attempts: dict[int, int] = {}
-    for i, j in tried:
-        if j - i >= p.revisit_gap:
-            attempts[j] = attempts.get(j, 0) + 1
-    open_scans = {j for j in nodes if j not in closed and attempts.get(j, 0) < p.revisit_tries}
-    return _nearest_earlier(scans, nodes, values, p.revisit_gap, p.revisit_per_scan, p.loop_radius_m, tried,
-                            only=open_scans)
+    attempts = Counter(j for i, j in tried if j - i >= p.revisit_gap)
+    open_scans = {j for j in nodes if j not in closed and attempts[j] < p.revisit_tries}
+    return _nearest_earlier(nodes, values, p.revisit_gap, p.revisit_per_scan, p.loop_radius_m, tried, only=open_scans)
 
 
 def _loop_guess(scans: Sequence[RangeScan], nodes: list[int], values: gtsam.Values, a_idx: int, b_idx: int,
