@@ -6,13 +6,15 @@ multi-chamber cisterns (:mod:`cistern_archive.simulation.chambers`), all through
 simulator and the pipeline's segmentation — runs the point matchers with every verification limit off
 (so each reports the pose its search found), labels each pose against the truth — correct: within
 0.10 m and 2°; wrong: more than 0.15 m or 3° off, or the two scans are of different sites; poses in
-between are left out — and fits a logistic model of ``P(correct)`` on the fit statistics of
+between are left out; a pose ``icp`` refuses for turning beyond ``max_turn_deg`` is left out too, as
+no model is asked about it — and fits a logistic model of ``P(correct)`` on the fit statistics of
 :func:`cistern_plugins.verification.features`. The acceptance threshold is the lowest probability at
 which at most ``--false-match-rate`` of the wrong poses are accepted. The same is then measured on
 pairs of a second seed (``--seed``), with 95 % Wilson intervals, and everything is printed; with
 ``--write`` the model is written where the matchers read it.
 
-    python benchmarks/calibrate_verification.py --pairs 100 --sites 12 --tune-seed 101 --seed 202 --write --json
+    python benchmarks/calibrate_verification.py --pairs 100 --sites 12 --tune-seed 101 --tune-seed 303 --seed 202 \
+        --false-match-rate 0.02 --write --json
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from cistern_archive.pipeline.registry import default_registry
 from cistern_archive.pipeline.runner import match_pair, resolve_stage, segment_scan
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_plugins.alignment import ConvergenceThresholds
+from cistern_plugins.icp import turned_too_far
 from cistern_plugins.registration import ConvergenceParams, ReferenceModel
 from cistern_plugins.verification import CALIBRATION_FILE, FEATURES, Calibration, calibration, features
 
@@ -83,10 +86,13 @@ def labelled_fits(pairs: list[SimulatedPair], matcher_names=MATCHERS) -> tuple[n
     for name in matcher_names:
         matcher = resolve_stage(registry, "matcher", name, OPEN_LIMITS)
         limits = matcher.params.limits()
+        max_turn_deg = getattr(matcher.params, "max_turn_deg", 180.0)
         for k, pair in enumerate(pairs):
             result = match_pair(matcher, [pair.reference, pair.moving], k, 0, 1)
             if not np.isfinite([result.dx_m, result.dy_m, result.dyaw_rad]).all():
                 continue
+            if turned_too_far(result.dyaw_rad, max_turn_deg):
+                continue  # refused before any verdict (icp's turn limit): no model is asked about it
             pose = np.array([result.dx_m, result.dy_m, result.dyaw_rad])
             err = math.hypot(pose[0] - pair.dx_m, pose[1] - pair.dy_m)
             err_deg = abs(math.degrees((pose[2] - pair.dyaw_rad + math.pi) % (2 * math.pi) - math.pi))
@@ -159,9 +165,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=100, help="overlapping pairs per seed (and half as many without)")
     ap.add_argument("--sites", type=int, default=12, help="random multi-chamber cisterns per seed")
-    ap.add_argument("--tune-seed", type=int, default=101)
+    ap.add_argument("--tune-seed", type=int, action="append", default=[],
+                    help="seed of the pairs the model is fitted on (repeatable; default 101)")
     ap.add_argument("--seed", type=int, default=202, help="the seed the rates are reported on")
-    ap.add_argument("--false-match-rate", type=float, default=0.01)
+    ap.add_argument("--false-match-rate", type=float, default=0.02)
     ap.add_argument("--segmentation", default=None, help="segmentation method (default: the records' default)")
     ap.add_argument("--write", action="store_true", help=f"write the model to {CALIBRATION_FILE.name}")
     ap.add_argument("--weak-std-limit", type=float, action="append", default=[],
@@ -170,18 +177,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    x_tune, y_tune = labelled_fits(draw_pairs(args.pairs, args.tune_seed, args.segmentation)
-                                   + site_pairs(args.sites, args.tune_seed))
+    tune_seeds = args.tune_seed or [101]
+    if args.seed in tune_seeds:
+        ap.error("--seed must differ from every --tune-seed")
+    x_tune, y_tune = labelled_fits([pair for seed in tune_seeds for pair in
+                                    draw_pairs(args.pairs, seed, args.segmentation) + site_pairs(args.sites, seed)])
     weights, bias = fit_logistic(x_tune, y_tune)
     probe = Calibration(tuple(weights), bias, 0.5, args.false_match_rate, {})
     p_tune = np.array([probe.probability(f) for f in x_tune])
     threshold = threshold_for(p_tune, y_tune, args.false_match_rate)
     command = (f"python benchmarks/calibrate_verification.py --pairs {args.pairs} --sites {args.sites} "
-               f"--tune-seed {args.tune_seed} "
-               f"--seed {args.seed} --false-match-rate {args.false_match_rate}"
+               + "".join(f"--tune-seed {seed} " for seed in tune_seeds)
+               + f"--seed {args.seed} --false-match-rate {args.false_match_rate}"
                + (f" --segmentation {args.segmentation}" if args.segmentation else "") + " --write")
     model = Calibration(tuple(float(w) for w in weights), bias, threshold, args.false_match_rate,
-                        {"command": command, "tune_seed": args.tune_seed, "matchers": list(MATCHERS),
+                        {"command": command, "tune_seeds": tune_seeds, "matchers": list(MATCHERS),
                          "segmentation": args.segmentation or "records' default",
                          "tune_correct": int((y_tune == 1).sum()), "tune_wrong": int((y_tune == 0).sum())})
     x_test, y_test = labelled_fits(draw_pairs(args.pairs, args.seed, args.segmentation) + site_pairs(args.sites, args.seed))

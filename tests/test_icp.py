@@ -51,3 +51,23 @@ def test_corridor_is_reported_degenerate():
     res = ICPMatcher().match(a, b, ICPParams(), rng=rng)
     assert not res.converged
     assert "constrain" in res.reason or "weakly" in res.reason
+
+
+def test_a_fit_turned_beyond_the_compasses_is_refused():
+    rng = np.random.default_rng(6)
+    pair = simulated_pair(rng, overlap_range=(0.8, 1.0), offset_range_m=(0.1, 0.4), noise_m=0.02)
+    turn_deg = abs(np.degrees(pair.dyaw_rad))
+    assert turn_deg > 1.0  # the two compasses disagree
+    found = ICPMatcher().match(pair.reference, pair.moving, ICPParams(), rng=rng)
+    assert found.converged, found.reason
+    limited = ICPMatcher().match(pair.reference, pair.moving, ICPParams(max_turn_deg=turn_deg / 2), rng=rng)
+    assert not limited.converged and limited.reason.startswith("turned")
+    assert (limited.dx_m, limited.dy_m) == (found.dx_m, found.dy_m)  # the estimate stays, refused
+
+
+def test_turned_too_far_measures_the_turn_either_way_round():
+    from cistern_plugins.icp import turned_too_far
+
+    assert turned_too_far(np.radians(29.0), 30.0) == ""
+    assert turned_too_far(np.radians(-29.0) + 2 * np.pi, 30.0) == ""
+    assert "turned 179°" in turned_too_far(np.radians(-179.0), 30.0)

@@ -6,11 +6,14 @@ Outliers are rejected at every iteration by a correspondence distance gate and b
 best ``trim_fraction`` of the pairs, Chetverikov et al. 2002). The result is reported converged only
 when the iteration settled *and* the final fit passes the shared verdict of
 :mod:`cistern_plugins.registration` (inliers, inlier ratio, two-direction constraint). The iteration
-itself is :func:`cistern_plugins.registration.run_icp`.
+itself is :func:`cistern_plugins.registration.run_icp`. A fit turned more than ``max_turn_deg`` from the
+start is refused whatever its verdict: started from the compasses' headings, ICP settles in a
+rectangular or round chamber as well on the pose turned half a revolution, whose walls fit exactly.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import ClassVar, Literal
 
@@ -39,6 +42,19 @@ class ICPParams(ConvergenceParams):
     max_correspondence_m: float = Field(1.0, gt=0)
     trim_fraction: float = Field(0.8, gt=0, le=1)
     tolerance_m: float = Field(1e-3, gt=0)
+    max_turn_deg: float = Field(
+        30.0, gt=0, le=180, description="largest rotation from the compass-aligned start a fit may end with: two "
+        "scans' compasses disagree by a few degrees, so a fit turned further (a symmetric chamber fitting "
+        "itself turned half a revolution) is refused")
+
+
+def turned_too_far(dyaw_rad: float, max_turn_deg: float) -> str:
+    """The reason a fit turned more than ``max_turn_deg`` from the compass-aligned start is refused, or ``""``."""
+    turn = abs(math.degrees(math.remainder(dyaw_rad, 2.0 * math.pi)))
+    if turn <= max_turn_deg:
+        return ""
+    return (f"turned {turn:.0f}° from the compass headings (more than {max_turn_deg:g}°): a symmetric chamber "
+            "fits itself turned round")
 
 
 class ICPMatcher:
@@ -62,7 +78,7 @@ class ICPMatcher:
                       tolerance_m=p.tolerance_m)
         quality = model.assess_pair(moving, out.pose, p.limits())
         reason = "" if out.settled else f"did not settle in {p.max_iterations} iterations"
-        reason = reason or judge(quality, p.limits())
+        reason = reason or turned_too_far(float(out.pose[2]), p.max_turn_deg) or judge(quality, p.limits())
         return MatchResult(
             i=-1, j=-1, dx_m=float(out.pose[0]), dy_m=float(out.pose[1]), dyaw_rad=float(out.pose[2]),
             weight=quality.inlier_ratio, converged=not reason, iterations=out.iterations,

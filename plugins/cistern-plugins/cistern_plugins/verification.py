@@ -10,9 +10,10 @@ still letting some wrong ones through. Instead, a logistic model combines the st
     ``P(correct | fit) = 1 / (1 + exp(-(b + w · f)))``
 
 with the features ``f`` of :func:`features`. Its weights and its acceptance threshold are fitted by
-``benchmarks/calibrate_verification.py`` on simulated pairs of one seed (correct: within 0.10 m and 2°
-of the truth; wrong: more than 0.30 m off, or scans of different sites) and written to
-``verification.json`` beside this module, with the seed, the sample sizes and the false-match rate the
+``benchmarks/calibrate_verification.py`` on simulated pairs of tuning seeds (correct: within 0.10 m and
+2° of the truth; wrong: more than 0.15 m or 3° off, or scans of different sites; a pose ``icp`` refuses
+for turning far from the compasses is no question for the model and is left out) and written to
+``verification.json`` beside this module, with the seeds, the sample sizes and the false-match rate the
 threshold was chosen for; the script reports the rates on another seed. The probability is reported as
 the match's ``confidence`` and a fit whose confidence is below the threshold is refused with it as the
 reason. Three limits stay hard: ``min_inliers`` (no model vouches for a handful of points), and the
