@@ -158,7 +158,7 @@ class ConvergenceParams(StageParams):
     min_inliers: int = Field(25, ge=3)
     min_inlier_ratio: float = Field(0.5, ge=0, le=1)
     min_constraint: float = Field(0.03, ge=0)
-    max_weak_std_m: float = Field(0.025, gt=0)
+    max_weak_std_m: float = Field(0.03, gt=0)
     max_violation_ratio: float = Field(0.09, ge=0, le=1)
     free_space_margin_m: float = Field(0.3, ge=0)
     min_points: int = Field(20, ge=3)

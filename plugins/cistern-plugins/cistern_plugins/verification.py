@@ -21,8 +21,9 @@ two corridor tests — ``min_constraint``, the smaller eigenvalue of the wall-no
 inlier (0.03: with normals from ten neighbours, those of a straight corridor's noisy echoes alone reach
 about 0.015–0.025), and
 ``max_weak_std_m``, the predicted standard deviation of the translation along its weakest direction
-(a corridor seen without its ends slides along its axis however well its walls fit; at 0.025 m a
-0.10 m error is four standard deviations away).
+(a corridor seen without its ends slides along its axis however well its walls fit; at 0.03 m a
+0.10 m error is more than three standard deviations away; 0.025 m refused right matches along the
+demo gallery's reaches at the same false-match rate, benchmarks/RESULTS.md).
 """
 
 from __future__ import annotations
