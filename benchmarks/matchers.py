@@ -23,7 +23,7 @@ External peers (the ``peers`` extra) are run when they import, each at its best:
   ``icp``'s correspondence gate (``max_correspondence_m``) and iteration count (``max_iterations``), the
   reference's wall normals estimated by Open3D (on the walls extruded ±5 cm vertically, made
   horizontal), and judged converged by the same verdict as ``icp`` (its turn limit, then the calibrated
-  verification with its hard limits, :func:`cistern_plugins.registration.judge`). A virtual floor
+  verification with its hard limits, :func:`cistern_plugins.icp.icp_verdict`). A virtual floor
   plane under both clouds fixes the three out-of-plane degrees of freedom of Open3D's 6-DoF solve.
 * OpenKarto's correlative scan matcher (``karto-correlative``, ``karto-scanmatcher``; 5 m search
   window, 0.025 m grid, ±25° yaw), converged when its response reaches a threshold calibrated on
@@ -135,8 +135,8 @@ class Open3DPointToPlane:
         return np.column_stack([grid, np.full(len(grid), -1.0)])
 
     def match(self, reference: RangeScan, moving: RangeScan) -> MatchResult:
-        from cistern_plugins.icp import turned_too_far
-        from cistern_plugins.registration import ReferenceModel, judge
+        from cistern_plugins.icp import icp_verdict
+        from cistern_plugins.registration import ReferenceModel
 
         o3d, p = self.o3d, self.params
         start = time.perf_counter()
@@ -158,7 +158,7 @@ class Open3DPointToPlane:
         t = reg.transformation
         pose = np.array([t[0, 3], t[1, 3], math.atan2(t[1, 0], t[0, 0])])
         quality = ReferenceModel(reference).assess_pair(moving, pose, p.limits())
-        reason = turned_too_far(float(pose[2]), p.max_turn_deg) or judge(quality, p.limits())
+        reason = icp_verdict(float(pose[2]), quality, p)
         return MatchResult(-1, -1, float(pose[0]), float(pose[1]), float(pose[2]), quality.inlier_ratio,
                            not reason, p.max_iterations, time.perf_counter() - start, reason)
 

@@ -21,8 +21,9 @@ import numpy as np
 from pydantic import Field
 
 from cistern_archive.pipeline.contracts import MatchResult, StageParams
-from cistern_archive.core.scan import RangeScan
+from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.registration import (
+    AlignmentQuality,
     ConvergenceParams,
     ReferenceModel,
     fit_covariance,
@@ -50,11 +51,17 @@ class ICPParams(ConvergenceParams):
 
 def turned_too_far(dyaw_rad: float, max_turn_deg: float) -> str:
     """The reason a fit turned more than ``max_turn_deg`` from the compass-aligned start is refused, or ``""``."""
-    turn = abs(math.degrees(math.remainder(dyaw_rad, 2.0 * math.pi)))
+    turn = abs(math.degrees(wrap_angle(dyaw_rad)))
     if turn <= max_turn_deg:
         return ""
     return (f"turned {turn:.0f}° from the compass headings (more than {max_turn_deg:g}°): a symmetric chamber "
             "fits itself turned round")
+
+
+def icp_verdict(dyaw_rad: float, quality: AlignmentQuality, params: ICPParams) -> str:
+    """Why a settled ICP fit is refused, or ``""``: its turn from the compasses, then the shared verdict
+    (:func:`~cistern_plugins.registration.judge`)."""
+    return turned_too_far(dyaw_rad, params.max_turn_deg) or judge(quality, params.limits())
 
 
 class ICPMatcher:
@@ -78,7 +85,7 @@ class ICPMatcher:
                       tolerance_m=p.tolerance_m)
         quality = model.assess_pair(moving, out.pose, p.limits())
         reason = "" if out.settled else f"did not settle in {p.max_iterations} iterations"
-        reason = reason or turned_too_far(float(out.pose[2]), p.max_turn_deg) or judge(quality, p.limits())
+        reason = reason or icp_verdict(float(out.pose[2]), quality, p)
         return MatchResult(
             i=-1, j=-1, dx_m=float(out.pose[0]), dy_m=float(out.pose[1]), dyaw_rad=float(out.pose[2]),
             weight=quality.inlier_ratio, converged=not reason, iterations=out.iterations,
