@@ -101,6 +101,9 @@ def test_site_graph_joins_the_two_chambers_no_match_could_join():
     assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2  # x: along the tunnel
     (i, j), = poses.group_links  # the join is reported, between the stations nearest across it
     assert (i, j) == (2, 3)
+    (sigma,) = poses.group_link_sigma_m  # with how well it places the two groups against each other
+    offset = np.abs(error[3:, 0] - error[2, 0])  # the east group's error along the tunnel, against the west's
+    assert offset.max() - offset.min() < 0.02 and 0.05 < sigma and offset.max() < 1.96 * sigma
     alone = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_fit=False))
     assert alone.placed.tolist() == [True] * 3 + [False] * 3
     graph = consistent_edges(scans, matches, SiteGraphParams(group_min_score=1e6))

@@ -1,6 +1,7 @@
 """Pose-graph localizer: window pairs, robust to a wrong match, marginals, unplaced scans."""
 
 import numpy as np
+import pytest
 
 from cistern_archive.pipeline.contracts import MatchResult
 from cistern_archive.core.scan import RangeScan
@@ -71,3 +72,25 @@ def test_reference_is_in_the_largest_group():
     dense = [MatchResult(5, 6, 1.0, 0.0, 0.0, 1.0, True, 1, 0.0) for _ in range(6)]
     poses = loc.localize(_scans(7), chain + dense, p)
     assert poses.placed[:4].all() and not poses.placed[5:].any() and not poses.placed[4]
+
+
+def test_relative_sigma_is_the_uncertainty_of_one_scan_against_another_not_against_the_reference():
+    """A chain 0 → 1 → 2 whose links are uncertain by 0.1 m along and 0.2 m across: scan 2 against scan 1
+    is uncertain by exactly its link's 0.2 m however far the chain has drifted from the reference, and
+    against the reference by more (the two links, and scan 1's turn swinging the second)."""
+    import gtsam
+
+    from cistern_plugins.factor_graph import relative_sigma_m
+
+    graph = gtsam.NonlinearFactorGraph()
+    link = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1, 0.2, 0.01]))
+    graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-4))))
+    graph.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(1.0, 0.0, 0.5), link))
+    graph.add(gtsam.BetweenFactorPose2(1, 2, gtsam.Pose2(1.0, 0.0, 0.0), link))
+    values = gtsam.Values()
+    for k, pose in enumerate((gtsam.Pose2(), gtsam.Pose2(1.0, 0.0, 0.5), gtsam.Pose2(1.9, 0.5, 0.5))):
+        values.insert(k, pose)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    marginals = gtsam.Marginals(graph, result)
+    assert relative_sigma_m(marginals, result, 1, 2) == pytest.approx(0.2, rel=1e-3)
+    assert relative_sigma_m(marginals, result, 0, 2) > 0.25

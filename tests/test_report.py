@@ -565,9 +565,10 @@ def test_map_marks_the_joins_of_groups_fitted_as_wholes(tmp_path):
     xy = np.array([[0.0, 0.0], [2.0, 0.0], [6.0, 1.0]])
     failed = [MatchResult(1, 2, 4.0, 1.0, 0.0, 0.1, False, 1, 0.0, reason="ambiguous")]
     plain = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0)
-    fitted = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0, group_links=((1, 2),))
+    fitted = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0, group_links=((1, 2),), group_link_sigma_m=(0.2,))
     without = map_figure(tmp_path / "a.png", None, plain, failed, ["s1", "s2", "s3"], dpi=60)
     with_fit = map_figure(tmp_path / "b.png", None, fitted, failed, ["s1", "s2", "s3"], dpi=60)
     assert "fitting each group" not in without.caption
     assert "dotted lines join groups of scans that no match could join" in with_fit.caption
+    assert "s2–s3 to ±0.39 m (95 %)" in with_fit.caption  # with how precisely the join places the groups
     assert (tmp_path / "a.png").read_bytes() != (tmp_path / "b.png").read_bytes()

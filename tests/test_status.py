@@ -13,7 +13,7 @@ import numpy as np
 
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
-from cistern_archive.pipeline.status import MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, label_indices, site_status, weakness
+from cistern_archive.pipeline.status import MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, label_indices, site_status, weakness
 from service_helpers import CLI, make_catalog
 
 
@@ -25,6 +25,18 @@ def test_ok_only_when_every_scan_is_placed_and_every_dimension_measured():
     status, reasons = site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels,
                                   unmeasured=["width (truth): the map is empty"])
     assert status == "partial" and reasons == ["dimension not measured: width (truth): the map is empty"]
+
+
+def test_a_join_of_groups_placed_less_precisely_than_the_limit_makes_the_site_partial():
+    """Every scan placed, but two parts of the map joined by a group fit to within ±0.66 m only: the map
+    may be wrong by that much without any match being wrong, so the site is not ``ok``."""
+    labels = ["a1", "o1", "b1"]
+    precise = [("o1", "b1", MAX_JOIN_CI95_M - 0.01), ("a1", "o1", None)]
+    assert site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels, unmeasured=[], joins=precise) == ("ok", [])
+    status, reasons = site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels, unmeasured=[],
+                                  joins=[("o1", "b1", 0.659)])
+    assert status == "partial"
+    assert reasons[0].startswith("the groups of stations o1 and b1 are placed against each other only to ±0.66 m")
 
 
 def test_nothing_placed_or_a_stopped_stage_is_failed():

@@ -15,7 +15,7 @@ from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
 from cistern_archive.pipeline.contracts import DimensionRow, MatchGuess, Poses
-from cistern_archive.pipeline.intervals import ci95_half_width
+from cistern_archive.pipeline.intervals import Z95, ci95_half_width
 from cistern_archive.pipeline.results import (
     DimensionResult,
     PairResult,
@@ -63,8 +63,11 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         ))
     result.scans = scans
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
-    result.group_links = [] if poses is None else [
-        (labels[i], labels[j]) for i, j in poses.group_links if 0 <= i < len(labels) and 0 <= j < len(labels)]
+    links = [] if poses is None else [
+        (labels[i], labels[j], _ci95(poses.group_link_sigma_m, n)) for n, (i, j) in enumerate(poses.group_links)
+        if 0 <= i < len(labels) and 0 <= j < len(labels)]
+    result.group_links = [(a, b) for a, b, _ in links]
+    result.group_link_ci95_m = [ci for _, _, ci in links]
     result.pairs = [
         PairResult(i=m.i, j=m.j, dx_m=finite_or_none(m.dx_m), dy_m=finite_or_none(m.dy_m), dyaw_rad=finite_or_none(m.dyaw_rad),
                    weight=finite_or_none(m.weight) or 0.0, confidence=finite_or_none(m.confidence), tentative=m.tentative,
@@ -82,7 +85,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
     result.status, result.status_reasons = site_status(
         failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
-        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [])
+        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [], joins=links)
     result.track = None if build.track is None else track_summary(build.track)
     result.timings_s = dict(timings)
     result.timings_s["total"] = round(sum(timings.values()), 6)
@@ -95,6 +98,11 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         numpy=np.__version__,
     )
     return result
+
+
+def _ci95(sigmas: Sequence[float], n: int) -> float | None:
+    """The 95 % half-width (m) of the ``n``-th group link from its standard deviation, ``None`` when unknown."""
+    return finite_or_none(Z95 * sigmas[n]) if n < len(sigmas) else None
 
 
 def scan_entries(build: SiteBuild) -> list[ScanRef]:

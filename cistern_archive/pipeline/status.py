@@ -4,8 +4,10 @@ A site is
 
 * ``ok`` when the pipeline ran to the end, every scan was placed and every reference dimension was
   measured;
-* ``partial`` when it ran to the end but some scan is unplaced or some dimension could not be measured
-  (the report shows what was reached, with the reasons);
+* ``partial`` when it ran to the end but some scan is unplaced, some dimension could not be measured, or
+  two parts of the map are placed against each other less precisely than :data:`MAX_JOIN_CI95_M` (a join
+  of groups of scans fitted as wholes whose 95 % interval is wider: the map may be wrong by that much
+  without any match being wrong); the report shows what was reached, with the reasons;
 * ``failed`` when a stage stopped the build, or no scan at all could be placed.
 
 A measured dimension is *weak* when it rests on fewer than :data:`MIN_PROBE_FRACTION` of the probes the
@@ -37,6 +39,12 @@ MAX_WALL_LEAN_DEG = 30.0
 is weak: the sonar's wide vertical beam hears a leaning wall short. On the bundled bell-shaped cistern
 (a 35° vertical beam) the dimensions between walls leaning 23–25° lay within their 95 % intervals; the
 one between walls leaning 45° came out 0.30 m (7.8 %) short, outside its interval."""
+
+MAX_JOIN_CI95_M = 0.25
+"""A join of two parts of the map whose 95 % half-width (along its least certain direction) exceeds this
+makes the site ``partial``. On random three-chamber cisterns (``benchmarks/sites.py --random``) group fits
+along a tunnel seen end to end joined scans 0.17–0.29 m from where they belong with a standard deviation
+of about 0.33 m along the tunnel, and the site was otherwise ``ok``."""
 
 _SCAN_INDEX = re.compile(r"\b(scans?|station index) (\d+)\b")
 _PAIR_INDEX = re.compile(r"\((\d+), ?(\d+)\)(?!\s*m\b)")
@@ -81,7 +89,8 @@ def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_le
 
 
 def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], labels: Sequence[str],
-                unmeasured: Sequence[str]) -> tuple[SiteStatus, list[str]]:
+                unmeasured: Sequence[str], joins: Sequence[tuple[str, str, float | None]] = ()
+                ) -> tuple[SiteStatus, list[str]]:
     """The status of a site build and the reasons it is not ``ok``.
 
     Parameters
@@ -94,6 +103,9 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
         Station label per scan.
     unmeasured : sequence of str
         Names of the reference dimensions that could not be measured, each with its reason.
+    joins : sequence of (str, str, float or None)
+        The stations of each join of groups fitted as wholes with its 95 % half-width in metres
+        (``None`` when the localizer gave none); those wider than :data:`MAX_JOIN_CI95_M` are reasons.
 
     Returns
     -------
@@ -112,6 +124,14 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
         reasons.append(f"{len(unplaced)} of {len(scans_placed)} scans not placed ({', '.join(unplaced)})")
     if failed_stage is None and n_placed > 0:
         reasons += [f"dimension not measured: {text}" for text in unmeasured]
+        reasons += [imprecise_join(a, b, ci) for a, b, ci in joins if ci is not None and ci > MAX_JOIN_CI95_M]
     if failed_stage is not None or (scans_placed and n_placed == 0):
         return "failed", reasons
     return ("partial" if reasons else "ok"), reasons
+
+
+def imprecise_join(a: str, b: str, ci95_m: float) -> str:
+    """The status reason of a join of groups whose 95 % half-width ``ci95_m`` exceeds :data:`MAX_JOIN_CI95_M`."""
+    return (f"the groups of stations {a} and {b} are placed against each other only to ±{ci95_m:.2f} m (95 %, "
+            f"above {MAX_JOIN_CI95_M:.2f} m): no match joins them, the fit of the groups as wholes leaves one "
+            "direction uncertain, and parts of the map may be misplaced by that much")

@@ -24,6 +24,7 @@ from cistern_archive.core.dimensions import DimensionTable
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.poses import Poses
+from cistern_archive.pipeline.intervals import Z95
 from cistern_archive.report.canvas import LINK_BAD, LINK_FIT, LINK_OK, FigureFile, new_figure
 from cistern_archive.report.files import save_figure
 
@@ -135,12 +136,20 @@ def map_figure(
         + (f" (not placed: {', '.join(unplaced)})" if unplaced else "")
         + "; lines are pair matches, solid when converged, wider for larger weights"
         + ("; dotted lines join groups of scans that no match could join, placed by fitting each group's walls "
-           "and water to the other's (less precise along a tunnel both groups see end to end)" if fitted else "")
+           f"and water to the other's (less precise along a tunnel both groups see end to end: {join_precision(poses, labels)})"
+           if fitted else "")
         + "."
     )
     return FigureFile("map", path.name, "Map with scan stations and pair links",
                       f"Top-down evidence grid map{depth} with {len(placed)} scan stations and "
                       f"{len(matches)} pair-match links", caption)
+
+
+def join_precision(poses: Poses, labels: Sequence[str]) -> str:
+    """Each group link as ``o1–b1 to ±0.66 m (95 %)``: its 95 % half-width along its least certain direction."""
+    sigmas = list(poses.group_link_sigma_m) + [math.nan] * len(poses.group_links)
+    return ", ".join(f"{labels[i]}–{labels[j]}" + (f" to ±{Z95 * sigma:.2f} m (95 %)" if math.isfinite(sigma) else "")
+                     for (i, j), sigma in zip(poses.group_links, sigmas))
 
 
 def stacked_labels(xy: np.ndarray, labels: Sequence[str], *, tolerance_m: float) -> list[tuple[np.ndarray, str]]:

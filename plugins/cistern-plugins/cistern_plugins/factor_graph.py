@@ -154,8 +154,10 @@ def solve_gated(n: int, edges: list[Edge], reference: int, noise: GraphNoise, ga
 
 
 def poses_from_solution(scans: Sequence[RangeScan], graph: gtsam.NonlinearFactorGraph, result: gtsam.Values,
-                        placed_keys: set[int], reference: int, reasons: Sequence[str]) -> Poses:
-    """:class:`Poses` of the solved scans, with marginal covariances rotated into the map frame."""
+                        placed_keys: set[int], reference: int, reasons: Sequence[str],
+                        links: Sequence[tuple[int, int]] = ()) -> Poses:
+    """:class:`Poses` of the solved scans, with marginal covariances rotated into the map frame; ``links``
+    become :attr:`Poses.group_links`, each with its :func:`relative_sigma_m`."""
     n = len(scans)
     yaw = np.array([s.yaw_rad for s in scans], dtype=np.float64)
     placed = np.array([k in placed_keys for k in range(n)])
@@ -170,4 +172,23 @@ def poses_from_solution(scans: Sequence[RangeScan], graph: gtsam.NonlinearFactor
         c, s = math.cos(pose.theta()), math.sin(pose.theta())
         rot[:2, :2] = [[c, -s], [s, c]]
         cov[k] = rot @ marginals.marginalCovariance(k) @ rot.T
-    return Poses(xy, yaw, placed, tuple("" if placed[k] else reasons[k] for k in range(n)), reference, cov)
+    sigmas = tuple(relative_sigma_m(marginals, result, i, j) for i, j in links)
+    return Poses(xy, yaw, placed, tuple("" if placed[k] else reasons[k] for k in range(n)), reference, cov,
+                 group_links=tuple(links), group_link_sigma_m=sigmas)
+
+
+def relative_sigma_m(marginals: gtsam.Marginals, result: gtsam.Values, i: int, j: int) -> float:
+    """Standard deviation (m) of scan ``j``'s position relative to scan ``i`` along its least certain
+    direction, from the two scans' joint marginal covariance.
+
+    With ``T_i`` and ``T_j`` perturbed on the right by ``Exp(d_i)`` and ``Exp(d_j)``, their relative pose
+    ``T_i^-1 T_j`` is perturbed by ``d_j - Ad(T_ij^-1) d_i`` (first order), whose covariance follows from
+    the joint one. Unlike the marginals of the two scans, which grow with their distance from the
+    reference scan, it measures how well the two are placed against each other.
+    """
+    joint = marginals.jointMarginalCovariance(gtsam.KeyVector([i, j]))
+    full = np.block([[joint.at(i, i), joint.at(i, j)], [joint.at(j, i), joint.at(j, j)]])
+    between = result.atPose2(i).between(result.atPose2(j))
+    jacobian = np.hstack([-between.inverse().AdjointMap(), np.eye(3)])
+    relative = jacobian @ full @ jacobian.T
+    return float(math.sqrt(max(float(np.linalg.eigvalsh(relative[:2, :2])[-1]), 0.0)))

@@ -87,7 +87,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import ClassVar
 
 import gtsam
@@ -245,9 +244,8 @@ class SiteGraphLocalizer(GuidedLocalizer):
             if id(e) not in kept_ids:
                 graph.rejected[(e.i, e.j)] = "dropped by the χ² gate of the site's least-squares fit"
         reasons = [unplaced_reason(k, reference, graph, matches, labels) for k in range(n)]
-        poses = poses_from_solution(scans, solved, result, placed, reference, reasons)
-        links = tuple((i, j) for i, j in graph.fitted if i in placed and j in placed)
-        return replace(poses, group_links=links)
+        links = [(i, j) for i, j in graph.fitted if i in placed and j in placed]
+        return poses_from_solution(scans, solved, result, placed, reference, reasons, links)
 
 
 def largest_component(n: int, edges: Sequence[Edge]) -> set[int]:
