@@ -11,7 +11,11 @@ two different sites. Every matcher sees exactly the same pairs.
 
 Per bucket: success rate (converged, translation error ≤ 0.10 m, yaw error ≤ 2°), median and 95th
 percentile translation error and median rotation error over converged pairs, median seconds, and the
-false success rate (converged with no overlap, or with an error above 0.5 m). Statistics without data
+false success rate (converged with no overlap, or with an error above 0.5 m). The success rate is also
+given on the bucket's *well-posed* pairs (:func:`well_posed`): those whose shared walls, placed at the
+truth, fix both directions. The overlap of a pair counts shared wall, not what that wall constrains: two
+stations in a gallery share its two side walls, along which every position fits alike; a matcher that
+refuses such a pair is right, and one that accepts it guesses. Statistics without data
 (e.g. errors of a matcher that converged on no pair) are ``null`` in the JSON.
 
 Every rate (success, false success) comes with its 95 % Wilson interval (``*_ci95`` beside it in the
@@ -71,6 +75,7 @@ from cistern_archive.core.errors import PluginError
 from cistern_archive.evaluation import strict_json, wilson_interval
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.pf_pairwise import PAPER_CONFIGURATION
+from cistern_plugins.registration import ConvergenceParams, ReferenceModel
 from cistern_archive.simulation.pairs import PairSpec, SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import score
 
@@ -257,7 +262,24 @@ def matchers(*, karto_min_response: float | None = None, paper: bool = False,
     return found, missing
 
 
-def summarise(scores: list) -> dict[str, float]:
+def well_posed(pair: SimulatedPair) -> bool:
+    """Whether the walls the two scans share, placed at the truth, fix both directions of the translation:
+    at least ``min_inliers`` inliers, the smaller eigenvalue of the point-to-line information per inlier at
+    least ``min_constraint`` and the predicted standard deviation along the weakest direction at most
+    ``max_weak_std_m`` (the limits of :class:`~cistern_plugins.registration.ConvergenceParams` at their
+    defaults, the built-in matchers' own). A property of the pair, whatever any matcher estimates."""
+    if pair.overlap <= 0:
+        return False
+    params = ConvergenceParams()
+    limits = params.limits()
+    truth = np.array([pair.dx_m, pair.dy_m, pair.dyaw_rad])
+    quality = ReferenceModel(pair.reference).assess_pair(pair.moving, truth, limits)
+    return (quality.inliers >= limits.min_inliers and quality.constraint >= limits.min_constraint
+            and quality.weak_std_m <= params.max_weak_std_m)
+
+
+def summarise(scores: list, posed: list[bool] | None = None) -> dict[str, float]:
+    """The figures of one bucket (module docstring); ``posed`` flags its well-posed pairs."""
     conv = [s for s in scores if s.converged and math.isfinite(s.translation_error_m)]
     if not scores:
         return {}
@@ -276,7 +298,16 @@ def summarise(scores: list) -> dict[str, float]:
         "median_seconds": float(np.median([s.seconds for s in scores])),
         "false_success_rate": false / len(scores),
         "false_success_rate_ci95": list(wilson_interval(false, len(scores))),
+        **({} if posed is None else well_posed_rate(scores, posed)),
     }
+
+
+def well_posed_rate(scores: list, posed: list[bool]) -> dict:
+    """Success on the well-posed pairs among ``scores`` (``posed`` flags them)."""
+    n = sum(posed)
+    wins = sum(bool(s.success) for s, ok in zip(scores, posed) if ok)
+    return {"well_posed_n": n, "well_posed_success_rate": wins / n if n else float("nan"),
+            "well_posed_success_rate_ci95": list(wilson_interval(wins, n)) if n else [float("nan")] * 2}
 
 
 def score_matcher(fn, buckets: dict[str, list[SimulatedPair]]) -> tuple[dict[str, list], str | None]:
@@ -324,6 +355,7 @@ def run(n: int, seed: int, n_blind: int, sonar: str, *, tune_seed: int | None = 
     spec = PairSpec(sonar=sonar)
     tuning = tune_karto(tune_seed, n_blind, spec, paper) if tune_seed is not None else None
     buckets = draw_buckets(n, seed, n_blind, spec)
+    posed = {bucket: [well_posed(p) for p in pairs] for bucket, pairs in buckets.items() if bucket != "no_overlap"}
     found, missing = matchers(karto_min_response=tuning["karto_min_response"] if tuning else None, paper=paper,
                               only=only)
     out: dict = {"matchers": {}, "unavailable": missing, "pairs_per_bucket": n, "no_overlap_pairs": n_blind,
@@ -333,9 +365,10 @@ def run(n: int, seed: int, n_blind: int, sonar: str, *, tune_seed: int | None = 
         scored, why = score_matcher(fn, buckets)
         if why is not None:
             out["unavailable"][name] = why
-        per = {bucket: summarise(scores) if scores else {} for bucket, scores in scored.items()}
-        overlapping = [s for bucket, scores in scored.items() if bucket != "no_overlap" for s in scores]
-        per["all_overlapping"] = summarise(overlapping) if overlapping else {}
+        per = {bucket: summarise(scores, posed.get(bucket)) if scores else {} for bucket, scores in scored.items()}
+        overlapping = [(s, ok) for bucket, scores in scored.items() if bucket != "no_overlap"
+                       for s, ok in zip(scores, posed[bucket])]
+        per["all_overlapping"] = summarise(*map(list, zip(*overlapping))) if overlapping else {}
         out["matchers"][name] = per
         print(f"{name:14s} done", file=sys.stderr)
     return out
@@ -473,14 +506,16 @@ def percent_with_interval(v: dict, key: str) -> str:
 
 
 def table(result: dict) -> str:
-    rows = ["| matcher | bucket | n | success [95 % CI] | median t (m) | p95 t (m) | median rot (°) | median s "
-            "| false [95 % CI] |",
-            "|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| matcher | bucket | n | success [95 % CI] | well-posed: n, success [95 % CI] | median t (m) | p95 t (m) "
+            "| median rot (°) | median s | false [95 % CI] |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for name, per in result["matchers"].items():
         for bucket, v in per.items():
             if not v or bucket == "all_overlapping":
                 continue
-            rows.append(f"| {name} | {bucket} | {v['n']} | {percent_with_interval(v, 'success_rate')} | "
+            posed = (f"{v['well_posed_n']}, {percent_with_interval(v, 'well_posed_success_rate')}"
+                     if v.get("well_posed_n") else "–")
+            rows.append(f"| {name} | {bucket} | {v['n']} | {percent_with_interval(v, 'success_rate')} | {posed} | "
                         f"{v['median_translation_error_m']:.3f} | {v['p95_translation_error_m']:.3f} | "
                         f"{v['median_rotation_error_deg']:.2f} | {v['median_seconds'] * 1000:.0f} ms | "
                         f"{percent_with_interval(v, 'false_success_rate')} |")

@@ -125,3 +125,19 @@ def test_tuning_and_reporting_seeds_must_differ():
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "matchers.py"), "--seed", "4", "--tune-seed", "4"],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and "--tune-seed must differ" in out.stderr
+
+
+def test_a_pair_in_a_straight_gallery_is_not_well_posed_and_one_in_a_room_is():
+    """Two stations 1.5 m apart in a straight gallery share its two side walls (plenty of overlap), but
+    every position along it fits alike: not well posed. The same two stations in a room are."""
+    from cistern_archive.grid.polygon import polygon_scan
+    from cistern_archive.simulation.pairs import SimulatedPair
+
+    rng = np.random.default_rng(3)
+    gallery = np.array([[-15.0, -0.6], [15.0, -0.6], [15.0, 0.6], [-15.0, 0.6]])
+    room = np.array([[-2.5, -2.0], [3.0, -2.0], [3.0, 2.5], [-2.5, 2.5]])
+    for polygon, expected in ((gallery, False), (room, True)):
+        a, b = (polygon_scan([polygon], xy, 0.0, rng=rng, n_beams=400, max_range_m=4.0) for xy in ((0.0, 0.0), (1.5, 0.0)))
+        pair = SimulatedPair(a, b, 1.5, 0.0, 0.0, overlap=0.8, noise_m=0.0)
+        assert matchers.well_posed(pair) is expected
+    assert not matchers.well_posed(SimulatedPair(a, b, 1.5, 0.0, 0.0, overlap=0.0, noise_m=0.0))  # no overlap
