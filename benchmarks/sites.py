@@ -19,6 +19,10 @@ record's plugins (the defaults unless the record names others, or ``--localizer`
   :func:`cistern_archive.sonar.geometry.overlap_fraction`) and those among them that converged within
   0.10 m of the truth displacement (in the reference scan's compass frame); ``eligible_pairs`` counts
   only neighbouring pairs, ``pairs_ge50`` every matched pair;
+* pairs sharing ≥ 50 % of their wall: the same, but on the share of wall the two stations both see
+  (:func:`~cistern_archive.sonar.geometry.shared_wall_fraction`) instead of the share of water: two stations in
+  chambers that look at each other through a tunnel share much water and little wall, and no matcher can
+  align walls it was not shown (``--details`` and the table, not the last line);
 * rejected correct pairs: matched pairs with ≥ 50 % overlap reported not converged whose estimate was
   nevertheless within 0.10 m (what a better verification would keep);
 * false convergences: matched pairs reported converged that are more than 0.10 m off, and among them
@@ -79,7 +83,7 @@ from cistern_archive.evaluation import in_compass_frame, position_errors as alig
 from cistern_archive.evaluation import reference_frame_errors, strict_json, wilson_interval  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site, match_pair, record_ties, resolve_stages  # noqa: E402
-from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction  # noqa: E402
+from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction, shared_wall_fraction  # noqa: E402
 from cistern_archive.simulation.spec import load_spec  # noqa: E402
 from cistern_plugins.registration import ConvergenceThresholds, ReferenceModel  # noqa: E402
 
@@ -108,6 +112,7 @@ class SiteTruth:
         self.spec = load_spec(catalog / record.simulation) if record.simulation else None
         self.max_range = record.sonar.range_m or max(s.max_range_m for s in scans)
         self._overlaps: dict[tuple[int, int], float] = {}
+        self._shared_walls: dict[tuple[int, int], float] = {}
 
     def cross_level(self, i: int, j: int) -> bool:
         return abs(self.scans[i].depth_m - self.scans[j].depth_m) > LEVEL_TOLERANCE_M
@@ -123,6 +128,19 @@ class SiteTruth:
                 rings = interpolate_slice(self.spec.site.slices(), depth)
                 self._overlaps[key] = overlap_fraction(self.xy[i], self.xy[j], rings, self.max_range)
         return self._overlaps[key]
+
+    def shared_wall(self, i: int, j: int) -> float:
+        """Shared-wall fraction of scans ``i`` and ``j`` (:func:`~cistern_archive.sonar.geometry.shared_wall_fraction`;
+        ``nan`` without a spec or across levels)."""
+        key = (min(i, j), max(i, j))
+        if key not in self._shared_walls:
+            if self.spec is None or self.cross_level(i, j):
+                self._shared_walls[key] = float("nan")
+            else:
+                depth = 0.5 * (self.scans[i].depth_m + self.scans[j].depth_m)
+                rings = interpolate_slice(self.spec.site.slices(), depth)
+                self._shared_walls[key] = shared_wall_fraction(self.xy[i], self.xy[j], rings, self.max_range)
+        return self._shared_walls[key]
 
     def true_pose(self, i: int, j: int) -> np.ndarray:
         """Where scan ``j`` truly lies in scan ``i``'s compass frame: displacement and yaw correction."""
@@ -237,12 +255,13 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         err = estimate_err if m.converged else float("nan")
         neighbour = abs(m.i - m.j) == 1
         pairs.append({"i": m.i, "j": m.j, "converged": m.converged, "error_m": err, "estimate_error_m": estimate_err,
-                      "overlap": truth.overlap(m.i, m.j), "neighbour": neighbour, "seconds": m.seconds,
+                      "overlap": truth.overlap(m.i, m.j), "shared_wall": truth.shared_wall(m.i, m.j), "neighbour": neighbour, "seconds": m.seconds,
                       "reason": m.reason})
     poses = build.poses
     position_errors = reference_frame_errors(poses, truth.xy, truth.compass_err) if poses is not None else []
     aligned = aligned_errors(build.result)
     ge50 = [p for p in pairs if p["overlap"] >= 0.5]
+    wall50 = [p for p in pairs if p["shared_wall"] >= 0.5]
     eligible = [p for p in ge50 if p["neighbour"]]
     good = [p for p in eligible if p["converged"] and p["error_m"] <= OK_PAIR_M]
     false_conv = [p for p in pairs if p["converged"] and p["error_m"] > OK_PAIR_M]
@@ -268,6 +287,8 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "eligible_pairs_ok": len(good),
         "pairs_ge50": len(ge50),
         "pairs_ge50_ok": sum(1 for p in ge50 if p["converged"] and p["error_m"] <= OK_PAIR_M),
+        "pairs_wall50": len(wall50),
+        "pairs_wall50_ok": sum(1 for p in wall50 if p["converged"] and p["error_m"] <= OK_PAIR_M),
         "pairs_ge50_rejected_reasons": [p["reason"][:120] for p in ge50 if not p["converged"]],
         "pairs_ge50_rejected_correct": sum(1 for p in ge50 if not p["converged"] and p["estimate_error_m"] <= OK_PAIR_M),
         "pairs": len(pairs),
@@ -290,6 +311,7 @@ def failed_row(record, build, seconds: float) -> dict:
     """The row of a site whose build stopped before its scans were segmented: nothing placed."""
     nan = float("nan")
     row = {key: 0 for key in ("placed", "placeable", "wrong_scans", "eligible_pairs", "eligible_pairs_ok", "pairs_ge50", "pairs_ge50_ok",
+                              "pairs_wall50", "pairs_wall50_ok",
                               "pairs", "pairs_converged", "false_convergences", "false_convergences_no_overlap",
                               "far_pairs", "far_pairs_converged", "cross_level_pairs", "cross_level_converged")}
     row.update({key: nan for key in ("median_position_error_m", "max_position_error_m", "median_aligned_error_m",
@@ -338,12 +360,15 @@ def random_summary(rows: list[dict]) -> dict:
         "break_pairs_asked": sum(p["asked"] for r in rows for p in r["break_pairs"]),
         "break_pairs_estimated_right": sum(p["best_error_m"] <= OK_PAIR_M for r in rows for p in r["break_pairs"]),
         "break_pairs_truth_among_rivals": sum(p["truth_among_rivals"] for r in rows for p in r["break_pairs"]),
+        "pairs_wall50": sum(r["pairs_wall50"] for r in rows),
+        "pairs_wall50_ok": sum(r["pairs_wall50_ok"] for r in rows),
         "pairs_ge50_rejected": sum(len(r["pairs_ge50_rejected_reasons"]) for r in rows),
         "pairs_ge50_rejected_correct": sum(r["pairs_ge50_rejected_correct"] for r in rows),
     }
 
 
 RATES = (("scans placed", "placed", "scans"), ("pairs >=50% within 0.10 m", "pairs_ge50_ok", "pairs_ge50"),
+         ("pairs sharing >=50% of their wall within 0.10 m", "pairs_wall50_ok", "pairs_wall50"),
          ("far pairs converged", "far_pairs_converged", "far_pairs"), ("silent wrong sites", "silent_wrong_sites", "sites"))
 
 

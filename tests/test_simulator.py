@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cistern_archive.catalog.models import Segmentation
-from cistern_archive.sonar.geometry import contains, interpolate_slice, overlap_fraction, ray_cast
+from cistern_archive.sonar.geometry import contains, interpolate_slice, overlap_fraction, ray_cast, shared_wall_fraction
 from cistern_archive.sonar.segmentation import segment
 from cistern_archive.simulation.output import probe_lengths
 from cistern_archive.simulation.simulator import TruePose, beam_bearings, simulate_scan, simulate_site
@@ -287,3 +287,14 @@ def test_station_below_must_name_an_earlier_station():
     with pytest.raises(ValueError, match="not an earlier station"):
         SimulationSpec(id="s", name="s", site=site, stations=[
             StationSpec(name="a", x_m=1, y_m=1, below="b"), StationSpec(name="b", x_m=1, y_m=1)])
+
+
+def test_chambers_looking_through_a_tunnel_share_water_but_little_wall():
+    """Two 4 m rooms joined by a 0.4 m tunnel: a station in each sees a fifth or more of the other's water
+    through the tunnel but almost none of its walls; two stations in one room share nearly everything."""
+    rooms = [np.array([[0, 0], [4, 0], [4, 1.8], [6, 1.8], [6, 0], [10, 0], [10, 4], [6, 4], [6, 2.2], [4, 2.2],
+                       [4, 4], [0, 4]], dtype=float)]
+    west, west_too, east = (1.5, 2.0), (3.0, 2.0), (7.0, 2.0)
+    assert overlap_fraction(west, east, rooms, 8.0) > 0.2 and shared_wall_fraction(west, east, rooms, 8.0) < 0.1
+    assert shared_wall_fraction(west, west_too, rooms, 8.0) > 0.95
+    assert shared_wall_fraction(west, east, rooms, 8.0) == shared_wall_fraction(east, west, rooms, 8.0)

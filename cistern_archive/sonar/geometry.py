@@ -110,6 +110,32 @@ def visibility_polygon(origin: np.ndarray, rings: Sequence[Ring], max_range_m: f
     return np.asarray(origin)[None, :] + ranges[:, None] * np.column_stack([np.cos(angles), np.sin(angles)])
 
 
+def shared_wall_fraction(a: np.ndarray, b: np.ndarray, rings: Sequence[Ring], max_range_m: float,
+                         n_rays: int = 720, tolerance_m: float = 0.05) -> float:
+    """The smaller of the two shares of one station's visible wall that the other station sees too.
+
+    A station's visible wall is where ``n_rays`` rays cast from it meet the walls within ``max_range_m``;
+    the other station sees such a point when it lies within ``max_range_m`` of it and no wall stands in
+    between (up to ``tolerance_m``). Unlike :func:`overlap_fraction`, which shares *water*, this shares
+    the walls a matcher aligns: two chambers looking at each other through a tunnel share much of the
+    water either sees and little wall.
+    """
+    stations = (np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    angles = np.linspace(-np.pi, np.pi, n_rays, endpoint=False)
+    shares = []
+    for here, there in (stations, stations[::-1]):
+        ranges, _ = ray_cast(here, angles, rings)
+        seen = ranges <= max_range_m
+        if not seen.any():
+            return 0.0
+        walls = here + ranges[seen, None] * np.column_stack([np.cos(angles[seen]), np.sin(angles[seen])])
+        offset = walls - there
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        first, _ = ray_cast(there, np.arctan2(offset[:, 1], offset[:, 0]), rings)
+        shares.append(float(np.mean((distance <= max_range_m) & (first >= distance - tolerance_m))))
+    return min(shares)
+
+
 def _visible_ranges(origin: np.ndarray, rings: Sequence[Ring], max_range_m: float, n_rays: int) -> np.ndarray:
     angles = np.linspace(-np.pi, np.pi, n_rays, endpoint=False)
     ranges, _ = ray_cast(origin, angles, rings)
