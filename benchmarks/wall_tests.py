@@ -12,8 +12,9 @@ and no stretch of wall longer than ``max_violation_run_m`` may lie in the water 
 * ``matches``: every converged or tentative match, right (within 0.10 m) or wrong (more than 0.5 m
   off), with the stretch at its estimate;
 * ``joins``: every join ``site-graph``'s wall check judged, at the poses it judged it, right (every pair
-  within 0.3 m of the truth) or wrong (a pair more than 1 m off), with its longest stretch. The wall
-  check is observed, not changed: each call is recorded and passed on.
+  within 0.3 m of the truth) or wrong (a pair more than 1 m off), with its longest stretch and its
+  back-to-back count (:func:`back_to_back`). The wall check is observed, not changed: each call is
+  recorded and passed on.
 
 Usage::
 
@@ -54,7 +55,7 @@ class JoinRecorder:
     """Records every call of ``WallCheck.conflict`` (the pairs it assesses and their poses)."""
 
     def __init__(self) -> None:
-        self.calls: list[list[tuple[float, int, int, float, float]]] = []
+        self.calls: list[list[tuple[float, int, int, float, float, int, int]]] = []
         self.original = site_groups.WallCheck.conflict
         recorder = self
 
@@ -68,11 +69,19 @@ class JoinRecorder:
                     if site_groups.same_level(sa, sb, check.p) and \
                             math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
                         q = check.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), check.limits)
-                        pairs.append((q.violation_run_m, a, b, rel.x(), rel.y()))
+                        pairs.append((q.violation_run_m, a, b, rel.x(), rel.y(), q.behind, q.inliers))
             recorder.calls.append(pairs)
             return recorder.original(check, graph, i, j, z, **kwargs)
 
         site_groups.WallCheck.conflict = conflict
+
+
+def back_to_back(pairs) -> tuple[int, int]:
+    """The most wall points one scan of a join lays on walls another saw from the other side, among the
+    pairs that lay more so than from the same side (the wall check's back-to-back test; 0 when none),
+    and how many pairs of the join lay ``min_inliers`` or more so."""
+    backs = [behind for *_, behind, inliers in pairs if behind > inliers]
+    return max(backs, default=0), sum(b >= ConvergenceThresholds().min_inliers for b in backs)
 
 
 def truth_pairs(scans, truth: SiteTruth) -> list[tuple[float, int, int]]:
@@ -111,15 +120,15 @@ def one_site(job: tuple[int, int]) -> dict:
         joins = []
         for pairs in recorder.calls:
             if pairs:
-                errors = [truth.displacement_error(a, b, x, y) for _, a, b, x, y in pairs]
-                joins.append((max(errors), max(p[0] for p in pairs)))
+                errors = [truth.displacement_error(a, b, x, y) for _, a, b, x, y, _, _ in pairs]
+                joins.append((max(errors), max(p[0] for p in pairs), *back_to_back(pairs)))
         return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins}
 
 
 def summary(rows: list[dict]) -> dict:
     truth = np.array([t for r in rows for t in r["truth"]], dtype=float).reshape(-1, 3)
     matches = np.array([m for r in rows for m in r["matches"]], dtype=float).reshape(-1, 2)
-    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 2)
+    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 4)
     limit = ConvergenceThresholds().max_violation_run_m
     share = truth[:, 2] / np.maximum(truth[:, 1] + truth[:, 2], 1)
     right, wrong = matches[matches[:, 0] <= OK_PAIR_M], matches[matches[:, 0] > WRONG_MATCH_M]
@@ -138,7 +147,9 @@ def summary(rows: list[dict]) -> dict:
                     "wrong_median_run_m": round(float(np.median(wrong[:, 1])), 3) if len(wrong) else None,
                     "wrong_over_limit": int((wrong[:, 1] > limit).sum()), "wrong_max_run_m": top(wrong[:, 1])},
         "joins": {"right": len(right_joins), "right_max_run_m": top(right_joins[:, 1]), "wrong": len(wrong_joins),
-                  "wrong_runs_m": sorted(round(float(v), 2) for v in wrong_joins[:, 1])},
+                  "wrong_runs_m": sorted(round(float(v), 2) for v in wrong_joins[:, 1]),
+                  "right_back_to_back": sorted((int(v), int(n)) for v, n in right_joins[:, 2:] if v >= 10),
+                  "wrong_back_to_back": sorted((int(v), int(n)) for v, n in wrong_joins[:, 2:])},
         "limit_m": limit,
     }
 

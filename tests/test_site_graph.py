@@ -290,3 +290,24 @@ def test_when_the_gate_cuts_the_reference_off_the_scans_still_joined_are_placed(
     assert "s2" in poses.reasons[0]  # anchored on the first station still joined
     placed = poses.xy_m[1:] - poses.xy_m[1]
     np.testing.assert_allclose(placed, TRUTH[1:] - TRUTH[1], atol=1e-6)
+
+
+def test_a_join_that_lays_two_chambers_back_to_back_is_refused():
+    """Group {s1, s2} in a 4 m room, group {s3, s4} in another; a join that sets the second room right
+    against the first lays its west wall on the first room's east wall, which s1 and s2 saw from the
+    other side, for every pair of scans: no rock between two chambers is that thin. Set 0.5 m apart,
+    as the rooms could be, the same join is accepted."""
+    from cistern_archive.grid.polygon import polygon_scan, rectangle
+    from cistern_plugins.site_groups import Graph, WallCheck
+    import gtsam
+
+    west = [rectangle(4.0, 3.0, centre=(2.0, 1.5))]
+    for gap, refused in ((0.0, True), (0.5, False)):
+        east = [rectangle(4.0, 3.0, centre=(6.0 + gap, 1.5))]
+        xy = [(1.0, 1.5), (3.0, 1.5), (5.0 + gap, 1.5), (7.0 + gap, 1.5)]
+        scans = [polygon_scan(west if k < 2 else east, xy[k], 0.0, rng=np.random.default_rng(k), n_beams=200,
+                              range_noise_m=0.01) for k in range(4)]
+        graph = Graph(edges=[], ties=[], group=[0, 0, 2, 2],
+                      pose=[gtsam.Pose2(1.0, 1.5, 0.0), gtsam.Pose2(3.0, 1.5, 0.0), gtsam.Pose2(), gtsam.Pose2(2.0, 0.0, 0.0)])
+        why = WallCheck(scans, SiteGraphParams()).conflict(graph, 0, 2, gtsam.Pose2(4.0 + gap, 0.0, 0.0))
+        assert ("back to back" in why) is refused, why
