@@ -54,7 +54,8 @@ builds a graph over the whole site instead, in three steps.
    joins and no right one); then sequence links of tentative matches only. Every join must also leave
    the walls in place (:class:`WallCheck`): placed as the join would place them, no pair of the two
    groups' scans may lay a stretch of wall across the water the other saw (one chamber's opening onto
-   a look-alike's solid wall), and in the last two tiers the median share of wall points in the other
+   a look-alike's solid wall), no two pairs may lay their walls back to back (two chambers side by side
+   with no rock between them), and in the last two tiers the median share of wall points in the other
    scans' water must stay small (a look-alike chamber fits the scans it was matched with, not the
    others that see it from elsewhere); a refused join's matches are rejected with that reason.
 
@@ -78,7 +79,9 @@ builds a graph over the whole site instead, in three steps.
    When the gate cuts the reference station off (every edge of it contradicted by the others or by the
    compasses), the largest set of scans the kept edges still join is anchored on its first station and
    solved again: one bad station leaves itself unplaced, not the whole site.
-   ``gtsam.Marginals`` gives each scan's covariance.
+   ``gtsam.Marginals`` gives each scan's covariance, and each join of groups the standard deviation of its
+   two scans' relative position (``Poses.group_link_sigma_m``): how well the join places the two groups
+   against each other.
 
 Reasons name stations by their labels: an unplaced scan says which of its matches were rejected and why.
 """
