@@ -74,7 +74,7 @@ class GroupFitSettings:
     min_score: float = 30.0
     min_spread: float = 0.1
     min_refined_share: float = 0.2
-    ambiguity_ratio: float = 0.6
+    ambiguity_ratio: float = 0.7
     separation_m: float = 0.5
 
 
