@@ -144,8 +144,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Rebuild every changed site into OUT/<site-id>/, then OUT/index.html and OUT/summary.json.
 
-        Exit codes: 0 every site ok or unchanged; 1 some site partial (a scan unplaced or a dimension
-        not measured) or failed; 2 usage or catalog error; 3 internal error; 130 interrupted.
+        Exit codes: 0 every site ok or unchanged; 1 some site partial (a scan unplaced, two parts of the
+        map joined imprecisely, or a dimension not measured) or failed; 2 usage or catalog error; 3 internal
+        error; 130 interrupted.
         """
         from cistern_archive.service.rebuild import rebuild as run_rebuild
 
