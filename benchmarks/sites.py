@@ -111,36 +111,31 @@ class SiteTruth:
         self.scans = scans
         self.spec = load_spec(catalog / record.simulation) if record.simulation else None
         self.max_range = record.sonar.range_m or max(s.max_range_m for s in scans)
-        self._overlaps: dict[tuple[int, int], float] = {}
-        self._shared_walls: dict[tuple[int, int], float] = {}
+        self._measures: dict[tuple[str, int, int], float] = {}
 
     def cross_level(self, i: int, j: int) -> bool:
         return abs(self.scans[i].depth_m - self.scans[j].depth_m) > LEVEL_TOLERANCE_M
 
     def overlap(self, i: int, j: int) -> float:
         """Visible-area overlap of scans ``i`` and ``j`` (``nan`` without a spec or across levels)."""
-        key = (min(i, j), max(i, j))
-        if key not in self._overlaps:
-            if self.spec is None or self.cross_level(i, j):
-                self._overlaps[key] = float("nan")
-            else:
-                depth = 0.5 * (self.scans[i].depth_m + self.scans[j].depth_m)
-                rings = interpolate_slice(self.spec.site.slices(), depth)
-                self._overlaps[key] = overlap_fraction(self.xy[i], self.xy[j], rings, self.max_range)
-        return self._overlaps[key]
+        return self._pair_measure(overlap_fraction, i, j)
 
     def shared_wall(self, i: int, j: int) -> float:
         """Shared-wall fraction of scans ``i`` and ``j`` (:func:`~cistern_archive.sonar.geometry.shared_wall_fraction`;
         ``nan`` without a spec or across levels)."""
-        key = (min(i, j), max(i, j))
-        if key not in self._shared_walls:
+        return self._pair_measure(shared_wall_fraction, i, j)
+
+    def _pair_measure(self, measure, i: int, j: int) -> float:
+        """``measure(xy_i, xy_j, rings, max_range)`` on the true walls at the pair's mean depth, cached."""
+        key = (measure.__name__, min(i, j), max(i, j))
+        if key not in self._measures:
             if self.spec is None or self.cross_level(i, j):
-                self._shared_walls[key] = float("nan")
+                self._measures[key] = float("nan")
             else:
                 depth = 0.5 * (self.scans[i].depth_m + self.scans[j].depth_m)
                 rings = interpolate_slice(self.spec.site.slices(), depth)
-                self._shared_walls[key] = shared_wall_fraction(self.xy[i], self.xy[j], rings, self.max_range)
-        return self._shared_walls[key]
+                self._measures[key] = measure(self.xy[i], self.xy[j], rings, self.max_range)
+        return self._measures[key]
 
     def true_pose(self, i: int, j: int) -> np.ndarray:
         """Where scan ``j`` truly lies in scan ``i``'s compass frame: displacement and yaw correction."""
