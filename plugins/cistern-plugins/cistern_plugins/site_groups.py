@@ -186,8 +186,7 @@ class WallCheck:
         fewer than :data:`BACK_TO_BACK_PAIRS` pairs lay ``min_inliers`` or more wall points onto walls the
         other sonar saw from the other side, more than they lay on walls seen from the same side (two
         chambers back to back, the group form of :func:`~cistern_plugins.alignment.seen_from_behind`);
-        and, with ``shares_too``, the median
-        violation share stays within ``max_violation_ratio``."""
+        and, with ``shares_too``, the median violation share stays within ``max_violation_ratio``."""
         offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
         shares: list[tuple[float, int, int]] = []
         runs: list[tuple[float, int, int]] = []
