@@ -39,6 +39,19 @@ def test_a_join_of_groups_placed_less_precisely_than_the_limit_makes_the_site_pa
     assert reasons[0].startswith("the groups of stations o1 and b1 are placed against each other only to ±0.66 m")
 
 
+def test_joins_each_precise_enough_but_not_together_make_the_site_partial():
+    """Two joins in series, ±0.18 and ±0.22 m: each under the limit, together ±0.29 m (a scan two joins
+    away came out 0.36 m off so)."""
+    labels = ["a1", "o1", "b1", "o2", "c1"]
+    status, reasons = site_status(failed_stage=None, scans_placed=[True] * 5, labels=labels, unmeasured=[],
+                                  joins=[("o1", "b1", 0.18), ("b1", "o2", 0.22)])
+    assert status == "partial"
+    assert reasons == [reasons[0]] and "o1–b1, b1–o2 together place parts of the map" in reasons[0]
+    assert "±0.28 m" in reasons[0]
+    assert site_status(failed_stage=None, scans_placed=[True] * 5, labels=labels, unmeasured=[],
+                       joins=[("o1", "b1", 0.1), ("b1", "o2", 0.1)])[0] == "ok"
+
+
 def test_nothing_placed_or_a_stopped_stage_is_failed():
     status, reasons = site_status(failed_stage=None, scans_placed=[False, False], labels=["a", "b"],
                                   unmeasured=["width (truth): the map is empty"])

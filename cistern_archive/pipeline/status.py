@@ -5,9 +5,10 @@ A site is
 * ``ok`` when the pipeline ran to the end, every scan was placed and every reference dimension was
   measured;
 * ``partial`` when it ran to the end but some scan is unplaced, some dimension could not be measured, or
-  two parts of the map are placed against each other less precisely than :data:`MAX_JOIN_CI95_M` (a join
-  of groups of scans fitted as wholes whose 95 % interval is wider: the map may be wrong by that much
-  without any match being wrong); the report shows what was reached, with the reasons;
+  two parts of the map are placed against each other less precisely than :data:`MAX_JOIN_CI95_M` (joins
+  of groups of scans fitted as wholes whose 95 % intervals are wider, alone or together: the map may be
+  wrong by that much without any match being wrong, :func:`imprecise_joins`); the report shows what was
+  reached, with the reasons;
 * ``failed`` when a stage stopped the build, or no scan at all could be placed.
 
 A measured dimension is *weak* when it rests on fewer than :data:`MIN_PROBE_FRACTION` of the probes the
@@ -105,7 +106,7 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
         Names of the reference dimensions that could not be measured, each with its reason.
     joins : sequence of (str, str, float or None)
         The stations of each join of groups fitted as wholes with its 95 % half-width in metres
-        (``None`` when the localizer gave none); those wider than :data:`MAX_JOIN_CI95_M` are reasons.
+        (``None`` when the localizer gave none); :func:`imprecise_joins` says which are reasons.
 
     Returns
     -------
@@ -124,14 +125,30 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
         reasons.append(f"{len(unplaced)} of {len(scans_placed)} scans not placed ({', '.join(unplaced)})")
     if failed_stage is None and n_placed > 0:
         reasons += [f"dimension not measured: {text}" for text in unmeasured]
-        reasons += [imprecise_join(a, b, ci) for a, b, ci in joins if ci is not None and ci > MAX_JOIN_CI95_M]
+        reasons += imprecise_joins(joins)
     if failed_stage is not None or (scans_placed and n_placed == 0):
         return "failed", reasons
     return ("partial" if reasons else "ok"), reasons
 
 
-def imprecise_join(a: str, b: str, ci95_m: float) -> str:
-    """The status reason of a join of groups whose 95 % half-width ``ci95_m`` exceeds :data:`MAX_JOIN_CI95_M`."""
-    return (f"the groups of stations {a} and {b} are placed against each other only to ±{ci95_m:.2f} m (95 %, "
-            f"above {MAX_JOIN_CI95_M:.2f} m): no match joins them, the fit of the groups as wholes leaves one "
-            "direction uncertain, and parts of the map may be misplaced by that much")
+def imprecise_joins(joins: Sequence[tuple[str, str, float | None]]) -> list[str]:
+    """The status reasons of joins of groups (stations and 95 % half-width, see :func:`site_status`): each
+    join wider than :data:`MAX_JOIN_CI95_M`; or, when none is, all of them together if their half-widths
+    add up (root sum of squares, as independent errors of joins in series do) to more than it. Two scans
+    of the map are never separated by more joins than there are, so that sum bounds how far any part of
+    the map may be off against any other through its joins."""
+    known = [(a, b, ci) for a, b, ci in joins if ci is not None]
+    wide = [(a, b, ci) for a, b, ci in known if ci > MAX_JOIN_CI95_M]
+    if wide:
+        return [f"the groups of stations {a} and {b} are placed against each other only to ±{ci:.2f} m (95 %, "
+                f"above {MAX_JOIN_CI95_M:.2f} m): {_JOIN_CONSEQUENCE}" for a, b, ci in wide]
+    together = math.sqrt(sum(ci**2 for _, _, ci in known))
+    if len(known) < 2 or together <= MAX_JOIN_CI95_M:
+        return []
+    stations = ", ".join(f"{a}–{b}" for a, b, _ in known)
+    return [f"the joins of groups {stations} together place parts of the map against each other only to "
+            f"±{together:.2f} m (95 %, above {MAX_JOIN_CI95_M:.2f} m): {_JOIN_CONSEQUENCE}"]
+
+
+_JOIN_CONSEQUENCE = ("no match joins them, the fit of the groups as wholes leaves one direction uncertain, and parts "
+                     "of the map may be misplaced by that much")
