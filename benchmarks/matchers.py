@@ -368,7 +368,8 @@ def run(n: int, seed: int, n_blind: int, sonar: str, *, tune_seed: int | None = 
         per = {bucket: summarise(scores, posed.get(bucket)) if scores else {} for bucket, scores in scored.items()}
         overlapping = [(s, ok) for bucket, scores in scored.items() if bucket != "no_overlap"
                        for s, ok in zip(scores, posed[bucket])]
-        per["all_overlapping"] = summarise(*map(list, zip(*overlapping))) if overlapping else {}
+        per["all_overlapping"] = (summarise([s for s, _ in overlapping], [ok for _, ok in overlapping])
+                                  if overlapping else {})
         out["matchers"][name] = per
         print(f"{name:14s} done", file=sys.stderr)
     return out

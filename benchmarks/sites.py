@@ -250,15 +250,15 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         err = estimate_err if m.converged else float("nan")
         neighbour = abs(m.i - m.j) == 1
         pairs.append({"i": m.i, "j": m.j, "converged": m.converged, "error_m": err, "estimate_error_m": estimate_err,
-                      "overlap": truth.overlap(m.i, m.j), "shared_wall": truth.shared_wall(m.i, m.j), "neighbour": neighbour, "seconds": m.seconds,
-                      "reason": m.reason})
+                      "overlap": truth.overlap(m.i, m.j), "shared_wall": truth.shared_wall(m.i, m.j),
+                      "neighbour": neighbour, "seconds": m.seconds, "reason": m.reason})
     poses = build.poses
     position_errors = reference_frame_errors(poses, truth.xy, truth.compass_err) if poses is not None else []
     aligned = aligned_errors(build.result)
     ge50 = [p for p in pairs if p["overlap"] >= 0.5]
     wall50 = [p for p in pairs if p["shared_wall"] >= 0.5]
     eligible = [p for p in ge50 if p["neighbour"]]
-    good = [p for p in eligible if p["converged"] and p["error_m"] <= OK_PAIR_M]
+    good = [p for p in eligible if right(p)]
     false_conv = [p for p in pairs if p["converged"] and p["error_m"] > OK_PAIR_M]
     cross_level = [m for m in build.matches if truth.cross_level(m.i, m.j)]
     far = far_pair_scores(loaded, build, truth, far_limit) if far_limit > 0 else []
@@ -281,9 +281,9 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "eligible_pairs": len(eligible),
         "eligible_pairs_ok": len(good),
         "pairs_ge50": len(ge50),
-        "pairs_ge50_ok": sum(1 for p in ge50 if p["converged"] and p["error_m"] <= OK_PAIR_M),
+        "pairs_ge50_ok": sum(map(right, ge50)),
         "pairs_wall50": len(wall50),
-        "pairs_wall50_ok": sum(1 for p in wall50 if p["converged"] and p["error_m"] <= OK_PAIR_M),
+        "pairs_wall50_ok": sum(map(right, wall50)),
         "pairs_ge50_rejected_reasons": [p["reason"][:120] for p in ge50 if not p["converged"]],
         "pairs_ge50_rejected_correct": sum(1 for p in ge50 if not p["converged"] and p["estimate_error_m"] <= OK_PAIR_M),
         "pairs": len(pairs),
@@ -300,6 +300,11 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "site_seconds": seconds,
         "unplaced_reasons": [r for r in (poses.reasons if poses is not None else ()) if r][:3],
     }
+
+
+def right(pair: dict) -> bool:
+    """Whether a scored pair converged within ``OK_PAIR_M`` of the truth."""
+    return bool(pair["converged"] and pair["error_m"] <= OK_PAIR_M)
 
 
 def failed_row(record, build, seconds: float) -> dict:
