@@ -434,7 +434,8 @@ class ReferenceModel:
         n1, n2 = int(seen1.sum()), int(seen2.sum())
         ratios = (bad1.sum() / n1 if n1 else 0.0, bad2.sum() / n2 if n2 else 0.0)
         gap = 2 * limits.inlier_distance_m
-        run = max(longest_run_m(src, bad1, gap), longest_run_m(self.points, bad2, gap))
+        run = max(longest_run_m(src, bad1, gap, viewer=inverse(pose)[:2]),
+                  longest_run_m(self.points, bad2, gap, viewer=np.asarray(pose[:2], dtype=np.float64)))
         if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
             rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
                                   mov_free.visible(back, limits.free_space_margin_m),
@@ -446,7 +447,7 @@ class ReferenceModel:
                                 float(min(ratios)), q.behind, run)
 
 
-def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float) -> float:
+def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float, viewer: np.ndarray | None = None) -> float:
     """The longest stretch, in metres along a scan's consecutive wall points (beam order), of points
     flagged ``bad``, neighbours no farther apart than ``gap_m`` (one wall, not a jump to another).
 
@@ -454,13 +455,40 @@ def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float) -> float:
     match into the other scan's free space; a wrong one lays a whole stretch of wall across the water
     another sonar saw — one chamber's opening onto the other's solid wall. On 48 random multi-chamber
     cisterns (``benchmarks/wall_tests.py``) no pair at its true pose and no right join had a stretch
-    longer than 0.51 m; a wrong join that set a chamber's opening on a solid wall had 1.76 m."""
+    longer than 0.51 m; a wrong join that set a chamber's opening on a solid wall had 1.76 m.
+
+    With the position of the sonar whose water the points fall in (``viewer``, in the points' frame), a
+    stretch that sonar would see edge-on — the chord between its ends within ``GRAZING_DEG`` of the ray
+    to its middle — does not count: a sonar close to a wall, looking along it, hears little from it and
+    reports a farther echo, so its "water" there runs along the wall. The per-point normals of
+    :meth:`FreeSpace.violation_mask` already leave out such points where the wall is smooth; on a rough
+    wall ten neighbours' normals scatter by more than the grazing angle, the stretch's chord does not (a
+    right pair along a chamber's wall at its true pose laid 0.76 m so, seed 1 of the random cisterns).
+    """
     if len(points) < 2:
         return 0.0
     steps = np.hypot(*np.diff(points, axis=0).T)
     link = bad[1:] & bad[:-1] & (steps <= gap_m)
-    totals = np.bincount(np.cumsum(~link), weights=np.where(link, steps, 0.0))
+    run_id = np.cumsum(np.concatenate([[True], ~link]))  # run of each point; a link joins i to i + 1
+    totals = np.bincount(run_id[1:], weights=np.where(link, steps, 0.0), minlength=run_id[-1] + 1)
+    if viewer is not None:
+        totals[edge_on_runs(points, run_id, viewer)] = 0.0
     return float(totals.max())
+
+
+def edge_on_runs(points: np.ndarray, run_id: np.ndarray, viewer: np.ndarray) -> np.ndarray:
+    """Ids of the runs (``run_id`` of consecutive points) whose chord a sonar at ``viewer`` sees within
+    ``GRAZING_DEG`` of its plane (:func:`longest_run_m`)."""
+    ids = np.arange(run_id[-1] + 1)
+    first = np.searchsorted(run_id, ids, side="left")
+    last = np.searchsorted(run_id, ids, side="right") - 1
+    real = first <= last
+    chord = points[last[real]] - points[first[real]]
+    ray = 0.5 * (points[last[real]] + points[first[real]]) - np.asarray(viewer, dtype=np.float64)[None, :]
+    cross = np.abs(chord[:, 0] * ray[:, 1] - chord[:, 1] * ray[:, 0])
+    norms = np.hypot(*chord.T) * np.hypot(*ray.T)
+    grazing = (norms > 0) & (cross < math.sin(math.radians(GRAZING_DEG)) * norms)
+    return ids[real][grazing]
 
 
 def rotate(vectors: np.ndarray, angle: float) -> np.ndarray:
