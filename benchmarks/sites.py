@@ -7,6 +7,9 @@ Two sources of sites:
   (one to three chambers of 2.5–8 m joined by 0.8–1.2 m tunnels, 6–12 stations, Micron-like echoes,
   ±2° compass bias and 2° noise), written as a temporary catalog (specs, then scans, ``truth.json`` and
   records by the simulator's writer, as ``cistern-archive simulate`` does) and built from there.
+  ``--generator JSON`` draws them with other settings
+  (:class:`~cistern_archive.simulation.chambers.GeneratorSettings`: longer tunnels, tunnels surveyed
+  with a station every metre or two, another compass, more clutter).
 
 Each site is built by the pipeline runner (:func:`cistern_archive.pipeline.runner.build_site`) with the
 record's plugins (the defaults unless the record names others, or ``--localizer``), and scored:
@@ -49,6 +52,7 @@ Usage::
 
     .venv/bin/python benchmarks/sites.py [--catalog catalog] [--site ID ...] [--json]
     .venv/bin/python benchmarks/sites.py --random 40 --seed 1 [--workers 2] [--json] [--details out.json]
+        [--generator '{"tunnel_length_m": [2, 4], "tunnel_station_spacing_m": 1.5}']
 """
 
 from __future__ import annotations
@@ -66,6 +70,7 @@ from itertools import combinations
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -84,6 +89,7 @@ from cistern_archive.evaluation import reference_frame_errors, strict_json, wils
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site, match_pair, record_ties, resolve_stages  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction, shared_wall_fraction  # noqa: E402
+from cistern_archive.simulation.chambers import GeneratorSettings, random_cisterns, simulate_into, write_specs  # noqa: E402
 from cistern_archive.simulation.spec import load_spec  # noqa: E402
 from cistern_plugins.registration import ConvergenceThresholds, ReferenceModel  # noqa: E402
 
@@ -434,8 +440,6 @@ def demo_main(args) -> int:
 
 def _random_site(job: tuple[Path, Path, str | None, int]) -> dict:
     """Simulate one random site into the temporary catalog, build it and score it (one worker's job)."""
-    from cistern_archive.simulation.chambers import simulate_into
-
     spec_path, catalog, localizer, far_limit = job
     start = time.perf_counter()
     record_path = simulate_into(spec_path, catalog)
@@ -446,9 +450,9 @@ def _random_site(job: tuple[Path, Path, str | None, int]) -> dict:
 
 
 def random_main(args) -> int:
-    from cistern_archive.simulation.chambers import random_cisterns, write_specs
-
-    cisterns = random_cisterns(args.random, args.seed)
+    if args.generator != GeneratorSettings():
+        print(f"generator settings: {args.generator.model_dump_json(exclude_defaults=True)}")
+    cisterns = random_cisterns(args.random, args.seed, args.generator)
     chambers = {c.spec.id: c.chambers for c in cisterns}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="random-cisterns-") as tmp:
@@ -510,7 +514,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--far-pairs", type=int, default=12, metavar="K",
                         help="far pairs (< 20 %% overlap) asked of the matcher per site (--random)")
     parser.add_argument("--details", type=Path, help="write per-site and per-chamber-count results here (--random)")
+    parser.add_argument("--generator", default="{}", metavar="JSON",
+                        help="settings of the random cisterns (cistern_archive.simulation.chambers.GeneratorSettings) "
+                             'as JSON, e.g. \'{"tunnel_length_m": [2, 4], "tunnel_station_spacing_m": 1.5}\' (--random)')
     args = parser.parse_args(argv)
+    try:
+        args.generator = GeneratorSettings.model_validate_json(args.generator)
+    except ValidationError as exc:
+        parser.error(f"--generator: {exc}")
     if args.random is not None:
         if args.random < 1 or args.workers < 1 or args.far_pairs < 0:
             parser.error("--random and --workers must be at least 1, --far-pairs at least 0")

@@ -17,9 +17,11 @@ from cistern_archive.sonar.geometry import contains, ray_cast
 from cistern_archive.simulation.simulator import station_poses
 from cistern_archive.simulation.spec import SimulationSpec, load_spec
 from cistern_archive.simulation.chambers import (
+    OPENING_INSET_M,
     ROOM_M,
     STATIONS,
     TUNNEL_WIDTH_M,
+    GeneratorSettings,
     random_cistern,
     random_cisterns,
     simulate_into,
@@ -120,6 +122,42 @@ def test_micron_like_echoes_and_two_degree_compass():
         e = cistern.spec.effects
         assert e.speckle_looks > 0 and e.multipath_fraction > 0 and e.spike_rate > 0 and e.self_echo_db > -100
         assert abs(e.compass_bias_deg) <= 2.0 and e.compass_sigma_deg == pytest.approx(2.0)
+
+
+def test_default_settings_draw_the_same_sites_as_none():
+    again = random_cisterns(30, seed=7, settings=GeneratorSettings())
+    assert [c.spec for c in again] == [c.spec for c in CISTERNS]
+
+
+def test_settings_give_longer_tunnels_surveyed_along_their_length():
+    settings = GeneratorSettings(tunnel_length_m=(2.0, 4.0), tunnel_width_m=(0.7, 1.0), tunnel_station_spacing_m=1.5)
+    tunnels = 0
+    for cistern in random_cisterns(12, seed=7, settings=settings):
+        names = [s.name for s in cistern.spec.stations]
+        for k, t in enumerate(cistern.layout.tunnels):
+            assert 2.0 <= t.x1 - t.x0 <= 4.0 and 0.7 <= t.width_m <= 1.0
+            survey = [s for s in cistern.stations if s.name[0] in "otp" and s.name[1] == str(k + 1)]
+            xs = [s.xy[0] for s in survey]  # in the site's frame, west to east
+            assert xs[0] == pytest.approx(t.x0 - OPENING_INSET_M) and xs[-1] == pytest.approx(t.x1 + OPENING_INSET_M)
+            assert [s.place for s in survey] == ["opening"] + ["tunnel"] * (len(survey) - 2) + ["opening"]
+            assert np.diff([t.x0, *xs[1:-1], t.x1]).max() <= 1.5 + 1e-9 and len(survey) >= 3
+            first = names.index(survey[0].name)  # visited in a row, between the chambers they join
+            assert names[first:first + len(survey)] == [s.name for s in survey]
+            tunnels += 1
+    assert tunnels >= 5
+
+
+def test_settings_set_the_compass_and_the_clutter_and_refuse_bad_ranges():
+    settings = GeneratorSettings(compass_bias_deg=4.0, compass_sigma_deg=4.0, multipath_fraction=(0.2, 0.2),
+                                 spike_rate=0.02)
+    effects = [c.spec.effects for c in random_cisterns(20, seed=7, settings=settings)]
+    assert all(abs(e.compass_bias_deg) <= 4.0 and e.compass_sigma_deg == 4.0 for e in effects)
+    assert max(abs(e.compass_bias_deg) for e in effects) > 2.0
+    assert all(e.multipath_fraction == 0.2 and e.spike_rate == 0.02 for e in effects)
+    with pytest.raises(ValueError, match="tunnel_length_m"):
+        GeneratorSettings(tunnel_length_m=(3.0, 2.0))
+    with pytest.raises(ValueError):
+        GeneratorSettings(tunnel_lenght_m=(1.0, 2.0))  # a misspelt setting is an error, not a default
 
 
 def test_fixed_counts_and_bad_counts():

@@ -25,7 +25,8 @@ always on to the nearest, the tunnel's station between two chambers; each heads 
 20° of jitter. Echoes are Micron-like (the simulator's speckle, multipath ghosts, spikes, ring-down and
 vehicle echo, on by default; walls of roughness 0.03–0.3; range 6, 8 or 10 m in 4 cm bins, 0.9°
 steps); the compass has a bias of up to ±2° and 2° of noise. The records carry the true poses
-(``truth``), as the demo specs' records do.
+(``truth``), as the demo specs' records do. :class:`GeneratorSettings` changes the tunnels' length and
+width, how a tunnel is surveyed, the compass and the clutter, for studies of sites unlike these.
 
 >>> cistern = random_cistern(np.random.default_rng(1), index=0)   # doctest: +SKIP
 >>> site = simulate_site(cistern.spec)                            # doctest: +SKIP
@@ -39,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cistern_archive.simulation.output import write_site
 from cistern_archive.simulation.simulator import simulate_site
@@ -57,6 +59,36 @@ OPENING_INSET_M = 0.5
 COMPASS_BIAS_DEG = 2.0
 COMPASS_SIGMA_DEG = 2.0
 YAW_JITTER_DEG = 20.0
+MULTIPATH_FRACTION = (0.04, 0.10)
+
+
+class GeneratorSettings(BaseModel):
+    """What the generator draws from, where a study wants other sites than the defaults (module
+    docstring): ``benchmarks/sites.py --random N --generator JSON``. The defaults give the same sites,
+    draw for draw, as a generator without settings.
+
+    ``tunnel_station_spacing_m`` changes how tunnels are surveyed: unset, each tunnel has one station,
+    in it or in one of its openings; set, each has a station in both openings and inside one every
+    ``tunnel_station_spacing_m`` or less.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    tunnel_length_m: tuple[float, float] = Field(TUNNEL_LENGTH_M, description="range of a tunnel's length")
+    tunnel_width_m: tuple[float, float] = Field(TUNNEL_WIDTH_M, description="range of a tunnel's width")
+    tunnel_station_spacing_m: float | None = Field(None, gt=0, description="stations along a tunnel (above)")
+    compass_bias_deg: float = Field(COMPASS_BIAS_DEG, ge=0, description="a site's compass bias is drawn from ±this")
+    compass_sigma_deg: float = Field(COMPASS_SIGMA_DEG, ge=0, description="compass noise per scan")
+    multipath_fraction: tuple[float, float] = Field(MULTIPATH_FRACTION, description="range of the share of beams with a ghost")
+    spike_rate: float | None = Field(None, ge=0, description="isolated spikes per beam (unset: the simulator's default)")
+
+    @model_validator(mode="after")
+    def _ranges_ordered(self) -> "GeneratorSettings":
+        for name in ("tunnel_length_m", "tunnel_width_m", "multipath_fraction"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got ({lo}, {hi})")
+        return self
 
 
 @dataclass(frozen=True)
@@ -169,13 +201,14 @@ def _tunnel_height(rng: np.random.Generator, span: tuple[float, float], width: f
     return float(rng.uniform(lo, hi))
 
 
-def random_layout(rng: np.random.Generator, n_chambers: int) -> Layout:
+def random_layout(rng: np.random.Generator, n_chambers: int, settings: GeneratorSettings | None = None) -> Layout:
     """``n_chambers`` chambers in a row joined by tunnels (module docstring), rotated at random."""
+    settings = settings or GeneratorSettings()
     chambers = [random_chamber(rng)]
     tunnels = []
     for _ in range(n_chambers - 1):
-        width = float(rng.uniform(*TUNNEL_WIDTH_M))
-        length = float(rng.uniform(*TUNNEL_LENGTH_M))
+        width = float(rng.uniform(*settings.tunnel_width_m))
+        length = float(rng.uniform(*settings.tunnel_length_m))
         west = chambers[-1]
         y = _tunnel_height(rng, west.span(-1), width)
         east = random_chamber(rng)
@@ -272,6 +305,16 @@ def _connector(rng: np.random.Generator, tunnel: Tunnel, index: int) -> Station:
     return Station(f"o{index + 1}", np.array([x, tunnel.y]), "opening")
 
 
+def _tunnel_survey(tunnel: Tunnel, index: int, spacing_m: float) -> list[Station]:
+    """The stations of a tunnel surveyed along its length: one in each opening and, inside, one every
+    ``spacing_m`` or less, evenly spread (``t<k>a``, ``t<k>b`` …, between ``o<k>`` and ``p<k>``)."""
+    inside = max(1, math.ceil((tunnel.x1 - tunnel.x0) / spacing_m) - 1)
+    xs = [tunnel.x0 + (tunnel.x1 - tunnel.x0) * (q + 1) / (inside + 1) for q in range(inside)]
+    stations = [Station(f"o{index + 1}", np.array([tunnel.x0 - OPENING_INSET_M, tunnel.y]), "opening")]
+    stations += [Station(f"t{index + 1}{chr(ord('a') + q)}", np.array([x, tunnel.y]), "tunnel") for q, x in enumerate(xs)]
+    return stations + [Station(f"p{index + 1}", np.array([tunnel.x1 + OPENING_INSET_M, tunnel.y]), "opening")]
+
+
 def station_counts(rng: np.random.Generator, chambers: list[Chamber], n_stations: int) -> list[int]:
     """Stations per chamber: one each, the rest drawn in proportion to the chambers' areas."""
     spare = n_stations - (len(chambers) - 1) - len(chambers)
@@ -286,16 +329,20 @@ def _area(ring: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
-def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int) -> list[Station]:
-    """Stations in visiting order (module docstring), in the site's frame."""
+def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int,
+                  settings: GeneratorSettings | None = None) -> list[Station]:
+    """Stations in visiting order (module docstring), in the site's frame; ``n_stations`` counts one
+    station per tunnel, however many ``settings.tunnel_station_spacing_m`` puts there."""
+    spacing = (settings or GeneratorSettings()).tunnel_station_spacing_m
     site_ring = outline(layout.chambers, layout.tunnels)
     counts = station_counts(rng, layout.chambers, n_stations)
-    connectors = [_connector(rng, tunnel, k) for k, tunnel in enumerate(layout.tunnels)]
+    connectors = [[_connector(rng, tunnel, k)] if spacing is None else _tunnel_survey(tunnel, k, spacing)
+                  for k, tunnel in enumerate(layout.tunnels)]
     stations: list[Station] = []
     for k, (chamber, n) in enumerate(zip(layout.chambers, counts)):
         if k > 0:
-            stations.append(connectors[k - 1])
-        taken = [s.xy for s in stations + connectors[k:]]
+            stations += connectors[k - 1]
+        taken = [s.xy for s in stations] + [s.xy for tunnel in connectors[k:] for s in tunnel]
         stations += _chamber_stations(rng, chamber, site_ring, n, "abc"[k], taken)
     return stations
 
@@ -326,7 +373,7 @@ class GeneratedCistern:
 
 
 def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | None = None,
-                   stations: int | None = None) -> GeneratedCistern:
+                   stations: int | None = None, settings: GeneratorSettings | None = None) -> GeneratedCistern:
     """A random multi-chamber cistern (module docstring).
 
     Parameters
@@ -337,14 +384,17 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         Names the site (``cistern-<index>``).
     chambers, stations : int, optional
         Fix the number of chambers (1–3) or stations (6–12) instead of drawing them.
+    settings : GeneratorSettings, optional
+        What the draws range over (the defaults otherwise).
     """
+    settings = settings or GeneratorSettings()
     n_chambers = int(chambers if chambers is not None else rng.integers(1, 4))
     n_stations = int(stations if stations is not None else rng.integers(STATIONS[0], STATIONS[1] + 1))
     if not 1 <= n_chambers <= 3 or not STATIONS[0] <= n_stations <= STATIONS[1]:
         raise ValueError(f"chambers must be 1-3 and stations {STATIONS[0]}-{STATIONS[1]}, "
                          f"got {n_chambers} and {n_stations}")
-    layout = random_layout(rng, n_chambers)
-    planned = plan_stations(rng, layout, n_stations)
+    layout = random_layout(rng, n_chambers, settings)
+    planned = plan_stations(rng, layout, n_stations, settings)
     xy = layout.to_map(np.array([s.xy for s in planned]))
     yaws = headings(xy, rng)
     depth = float(rng.uniform(1.0, 1.6))
@@ -364,9 +414,10 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
                  "levels": [{"depth_m": 0.0, "walls": {"polygon": [[_round(x), _round(y)] for x, y in layout.outline]},
                              "wall_roughness": _round(rng.uniform(0.03, 0.3))}]},
         "sonar": {"range_m": range_m, "bins": int(round(range_m / 0.04)), "step_deg": 0.9},
-        "effects": {"compass_bias_deg": _round(rng.uniform(-COMPASS_BIAS_DEG, COMPASS_BIAS_DEG), 2),
-                    "compass_sigma_deg": COMPASS_SIGMA_DEG,
-                    "multipath_fraction": _round(rng.uniform(0.04, 0.10))},
+        "effects": {"compass_bias_deg": _round(rng.uniform(-settings.compass_bias_deg, settings.compass_bias_deg), 2),
+                    "compass_sigma_deg": settings.compass_sigma_deg,
+                    "multipath_fraction": _round(rng.uniform(*settings.multipath_fraction)),
+                    **({} if settings.spike_rate is None else {"spike_rate": settings.spike_rate})},
         "segmentation": {"min_range_m": 0.4},
         "stations": [
             {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
@@ -383,10 +434,10 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     return GeneratedCistern(SimulationSpec.model_validate(spec), layout, planned)
 
 
-def random_cisterns(n: int, seed: int) -> list[GeneratedCistern]:
-    """``n`` random cisterns from one seed (``cistern-000`` …)."""
+def random_cisterns(n: int, seed: int, settings: GeneratorSettings | None = None) -> list[GeneratedCistern]:
+    """``n`` random cisterns from one seed (``cistern-000`` …), drawn with ``settings``."""
     rng = np.random.default_rng(seed)
-    return [random_cistern(rng, k) for k in range(n)]
+    return [random_cistern(rng, k, settings=settings) for k in range(n)]
 
 
 def write_specs(cisterns: list[GeneratedCistern], root: Path) -> list[Path]:
