@@ -7,6 +7,7 @@ Exit codes: 0 all sites built; 1 some sites failed (the others still built); 2 u
 from __future__ import annotations
 
 import importlib
+import inspect
 import sys
 
 import typer
@@ -49,7 +50,18 @@ def _register_commands() -> None:
         module.register(app)
 
 
+def _one_line_summaries() -> None:
+    """Give every command the first paragraph of its docstring, on one line, as the summary in the
+    command list: the rich help keeps a docstring's line breaks there, which splits a sentence across
+    rows of the table."""
+    for info in app.registered_commands:
+        doc = info.help or (info.callback.__doc__ if info.callback else None)
+        if info.short_help is None and doc:
+            info.short_help = " ".join(inspect.cleandoc(doc).split("\n\n")[0].split())
+
+
 _register_commands()
+_one_line_summaries()
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -93,3 +93,13 @@ def test_help_texts_carry_no_markup():
         result = runner.invoke(app, [command, "--help"] if command else ["--help"], env={"COLUMNS": "200"})
         assert result.exit_code == 0, (command, result.output)
         assert "``" not in result.output and ":func:" not in result.output, (command, result.output)
+
+
+def test_command_list_gives_each_summary_as_running_text():
+    """A docstring's line breaks do not split a sentence across rows of the command list: on a wide
+    terminal every summary fits on its command's own row."""
+    result = runner.invoke(app, ["--help"], env={"COLUMNS": "400"})
+    assert result.exit_code == 0, result.output
+    rows = [line for line in result.output.splitlines() if line.startswith("│ ")]
+    continued = [line for line in rows if line[2:].startswith(" ")]  # a row with no command or option name
+    assert "ingest" in result.output and not continued, continued
