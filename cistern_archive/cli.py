@@ -50,18 +50,27 @@ def _register_commands() -> None:
         module.register(app)
 
 
-def _one_line_summaries() -> None:
-    """Give every command the first paragraph of its docstring, on one line, as the summary in the
-    command list: the rich help keeps a docstring's line breaks there, which splits a sentence across
-    rows of the table."""
-    for info in app.registered_commands:
+def running_text(doc: str) -> str:
+    """A docstring as help text: each paragraph on one line (the rich help keeps a docstring's line
+    breaks, which split sentences in mid-line on the terminal), paragraphs apart as before."""
+    return "\n\n".join(" ".join(paragraph.split()) for paragraph in inspect.cleandoc(doc).split("\n\n"))
+
+
+def _help_as_running_text(typer_app: typer.Typer) -> None:
+    """Give every command of ``typer_app`` and of its sub-apps its docstring as running text, and the
+    first paragraph as its summary in the command list."""
+    for info in typer_app.registered_commands:
         doc = info.help or (info.callback.__doc__ if info.callback else None)
-        if info.short_help is None and doc:
-            info.short_help = " ".join(inspect.cleandoc(doc).split("\n\n")[0].split())
+        if doc:
+            info.help = running_text(doc)
+            info.short_help = info.short_help or info.help.split("\n\n")[0]
+    for group in typer_app.registered_groups:
+        if group.typer_instance is not None:
+            _help_as_running_text(group.typer_instance)
 
 
 _register_commands()
-_one_line_summaries()
+_help_as_running_text(app)
 
 
 def main(argv: list[str] | None = None) -> None:

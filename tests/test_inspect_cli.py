@@ -96,10 +96,12 @@ def test_help_texts_carry_no_markup():
 
 
 def test_command_list_gives_each_summary_as_running_text():
-    """A docstring's line breaks do not split a sentence across rows of the command list: on a wide
-    terminal every summary fits on its command's own row."""
+    """A docstring's line breaks do not split a sentence across rows of the command list (on a wide
+    terminal every summary fits on its command's own row) nor across lines of a command's help."""
     result = runner.invoke(app, ["--help"], env={"COLUMNS": "400"})
     assert result.exit_code == 0, result.output
     rows = [line for line in result.output.splitlines() if line.startswith("│ ")]
     continued = [line for line in rows if line[2:].startswith(" ")]  # a row with no command or option name
     assert "ingest" in result.output and not continued, continued
+    own = runner.invoke(app, ["rebuild", "--help"], env={"COLUMNS": "400"}).output
+    assert "two parts of the map joined imprecisely" in own  # later paragraphs run on too
