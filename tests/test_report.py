@@ -301,7 +301,8 @@ def test_index_lists_sites_with_honest_status(catalog):
     html = (root / "index.html").read_text()
     for text in ("Swimming pool", "Bell cistern", "Broken site", "4 of 4", "3 of 4", "0 of 4",
                  "reference scan has no valid beams", "pool/thumbnail.png", "2024-01-01T00:00:00Z",
-                 "1 ok, 1 partial, 1 failed", "1 of 4 scans not placed (S4)"):
+                 "1 ok, 1 partial, 1 failed", "1 of 4 scans not placed (S4). The survey", "chain breaks between S3 and S4",
+                 "two parts of the map joined less precisely than ±0.25 m (95 %)"):
         assert text in html, text
     assert "broken/thumbnail.png" not in html
     for site, status in (("pool", "ok"), ("bell", "partial"), ("broken", "failed")):

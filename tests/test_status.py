@@ -13,7 +13,8 @@ import numpy as np
 
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
-from cistern_archive.pipeline.status import MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, label_indices, site_status, weakness
+from cistern_archive.pipeline.status import (MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, chain_breaks,
+                                              label_indices, site_status, weakness)
 from service_helpers import CLI, make_catalog
 
 
@@ -21,10 +22,21 @@ def test_ok_only_when_every_scan_is_placed_and_every_dimension_measured():
     labels = ["s1", "s2", "s3"]
     assert site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels, unmeasured=[]) == ("ok", [])
     status, reasons = site_status(failed_stage=None, scans_placed=[True, False, True], labels=labels, unmeasured=[])
-    assert status == "partial" and reasons == ["1 of 3 scans not placed (s2)"]
+    assert status == "partial" and reasons == [
+        "1 of 3 scans not placed (s2). The survey's chain breaks between s1 and s2: a station between them, "
+        "in sight of both, could join s2 to the map"]
     status, reasons = site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels,
                                   unmeasured=["width (truth): the map is empty"])
     assert status == "partial" and reasons == ["dimension not measured: width (truth): the map is empty"]
+
+
+def test_each_break_of_the_survey_chain_is_named_at_the_placed_station_next_to_it():
+    labels = ["a1", "a2", "t1", "b1", "b2", "c1"]
+    hints = chain_breaks([False, True, True, False, False, True], labels)
+    assert [h.split(":")[0] for h in hints] == ["The survey's chain breaks between a1 and a2",
+                                                "The survey's chain breaks between t1 and b1"]
+    assert hints[1].endswith("could join b1–b2 to the map")
+    assert chain_breaks([True] * 3, labels[:3]) == [] and chain_breaks([False] * 3, labels[:3]) == []
 
 
 def test_a_join_of_groups_placed_less_precisely_than_the_limit_makes_the_site_partial():

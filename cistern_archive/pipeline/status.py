@@ -122,13 +122,43 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
         reasons.append(f"none of the {len(scans_placed)} scans could be placed")
     elif n_placed < len(scans_placed) and failed_stage is None:
         unplaced = [labels[k] for k, p in enumerate(scans_placed) if not p]
-        reasons.append(f"{len(unplaced)} of {len(scans_placed)} scans not placed ({', '.join(unplaced)})")
+        reasons.append(f"{len(unplaced)} of {len(scans_placed)} scans not placed ({', '.join(unplaced)})"
+                       + "".join(f". {hint}" for hint in chain_breaks(scans_placed, labels)))
     if failed_stage is None and n_placed > 0:
         reasons += [f"dimension not measured: {text}" for text in unmeasured]
         reasons += imprecise_joins(joins)
     if failed_stage is not None or (scans_placed and n_placed == 0):
         return "failed", reasons
     return ("partial" if reasons else "ok"), reasons
+
+
+def chain_breaks(scans_placed: Sequence[bool], labels: Sequence[str]) -> list[str]:
+    """Where the survey's chain breaks, as advice for the next dive: for every run of unplaced scans in
+    the record's order (the order the stations were visited), the placed station next to it and what
+    would join the run to the map.
+
+    Examples
+    --------
+    >>> chain_breaks([True, True, False, False], ["a1", "a2", "b1", "b2"])
+    ["The survey's chain breaks between a2 and b1: a station between them, in sight of both, could join b1–b2 to the map"]
+    """
+    hints = []
+    n = len(scans_placed)
+    k = 0
+    while k < n:
+        if scans_placed[k]:
+            k += 1
+            continue
+        end = k
+        while end + 1 < n and not scans_placed[end + 1]:
+            end += 1
+        run = labels[k] if end == k else f"{labels[k]}–{labels[end]}"
+        if k > 0 or end + 1 < n:
+            near, far = (labels[k - 1], labels[k]) if k > 0 else (labels[end], labels[end + 1])
+            hints.append(f"The survey's chain breaks between {near} and {far}: a station between them, in sight "
+                         f"of both, could join {run} to the map")
+        k = end + 1
+    return hints
 
 
 def imprecise_joins(joins: Sequence[tuple[str, str, float | None]]) -> list[str]:

@@ -14,7 +14,7 @@ import numpy as np
 
 from cistern_archive import __version__
 from cistern_archive.pipeline.results import DimensionResult, SiteResult, TrackSummary
-from cistern_archive.pipeline.status import MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
+from cistern_archive.pipeline.status import MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import build_time_from_env, format_time
 from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_index_page, signed, with_interval
@@ -253,6 +253,7 @@ def render_index(
         summary_figures=summary_figures(entries),
         weak_threshold=f"{MAX_PROBE_STD_M:.2f}",
         lean_threshold=f"{MAX_WALL_LEAN_DEG:.0f}",
+        join_threshold=f"{MAX_JOIN_CI95_M:.2f}",
         track_columns=TRACK_COLUMNS,
         track_rows=track_table(entries),
         track_sources=sorted({e.track.published_source for e in entries if e.track and e.track.published_source}),
