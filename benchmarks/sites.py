@@ -452,7 +452,11 @@ def _random_site(job: tuple[Path, Path, str | None, int]) -> dict:
 def random_main(args) -> int:
     if args.generator != GeneratorSettings():
         print(f"generator settings: {args.generator.model_dump_json(exclude_defaults=True)}")
-    cisterns = random_cisterns(args.random, args.seed, args.generator)
+    try:
+        cisterns = random_cisterns(args.random, args.seed, args.generator)
+    except ValueError as exc:  # settings the generator cannot draw a site from
+        print(f"error: --generator {args.generator.model_dump_json(exclude_defaults=True)}: {exc}", file=sys.stderr)
+        return 2
     chambers = {c.spec.id: c.chambers for c in cisterns}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="random-cisterns-") as tmp:

@@ -215,3 +215,14 @@ def test_sites_random_json_interface():
     if last["placed"] >= 2:
         assert 0 <= last["median_aligned_error_m"] <= last["max_aligned_error_m"]
     assert "scans placed" in out.stdout and "[" in out.stdout  # the table with Wilson intervals
+
+
+def test_sites_benchmark_refuses_generator_settings_it_cannot_draw_from():
+    """A tunnel wider than any chamber's end wall, or settings that are not valid: one line naming the
+    settings and the cause, exit 2, no traceback."""
+    for settings, cause in (('{"tunnel_width_m": [2.5, 3.0]}', "cannot hold a"),
+                            ('{"tunnel_length_m": [3, 2]}', "tunnel_length_m must be")):
+        out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sites.py"), "--random", "3",
+                              "--generator", settings], capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2, out.stderr
+        assert cause in out.stderr and "Traceback" not in out.stderr, out.stderr
