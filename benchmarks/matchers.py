@@ -270,12 +270,11 @@ def well_posed(pair: SimulatedPair) -> bool:
     defaults, the built-in matchers' own). A property of the pair, whatever any matcher estimates."""
     if pair.overlap <= 0:
         return False
-    params = ConvergenceParams()
-    limits = params.limits()
+    limits = ConvergenceParams().limits()
     truth = np.array([pair.dx_m, pair.dy_m, pair.dyaw_rad])
     quality = ReferenceModel(pair.reference).assess_pair(pair.moving, truth, limits)
     return (quality.inliers >= limits.min_inliers and quality.constraint >= limits.min_constraint
-            and quality.weak_std_m <= params.max_weak_std_m)
+            and quality.weak_std_m <= limits.max_weak_std_m)
 
 
 def summarise(scores: list, posed: list[bool] | None = None) -> dict[str, float]:

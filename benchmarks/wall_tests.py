@@ -53,36 +53,29 @@ WRONG_JOIN_M = 1.0
 
 
 class JoinRecorder:
-    """Records every call of ``WallCheck.conflict`` (the pairs it assesses and their poses)."""
+    """Records the pairs of every join ``WallCheck`` judges (:meth:`~cistern_plugins.site_groups.WallCheck.assess_join`:
+    their qualities and relative poses) and passes them on unchanged."""
 
     def __init__(self) -> None:
-        self.calls: list[list[tuple[float, int, int, float, float, int, int]]] = []
-        self.original = site_groups.WallCheck.conflict
+        self.calls: list[list[site_groups.JoinPair]] = []
+        original = site_groups.WallCheck.assess_join
         recorder = self
 
-        def conflict(check, graph, i, j, z, **kwargs):
-            offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
-            pairs = []
-            for a in graph.members(graph.group[i]):
-                for b in graph.members(graph.group[j]):
-                    rel = graph.pose[a].between(offset.compose(graph.pose[b]))
-                    sa, sb = check.scans[a], check.scans[b]
-                    if site_groups.same_level(sa, sb, check.p) and \
-                            math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
-                        q = check.model(a).assess_pair(sb, np.array([rel.x(), rel.y(), rel.theta()]), check.limits)
-                        pairs.append((q.violation_run_m, a, b, rel.x(), rel.y(), q.behind, q.inliers))
+        def assess_join(check, graph, i, j, z):
+            pairs = original(check, graph, i, j, z)
             recorder.calls.append(pairs)
-            return recorder.original(check, graph, i, j, z, **kwargs)
+            return pairs
 
-        site_groups.WallCheck.conflict = conflict
+        site_groups.WallCheck.assess_join = assess_join
 
 
-def back_to_back(pairs) -> tuple[int, int]:
+def back_to_back(pairs: list[site_groups.JoinPair]) -> tuple[int, int]:
     """The most wall points one scan of a join lays on walls another saw from the other side, among the
-    pairs that lay more so than from the same side (the wall check's back-to-back test; 0 when none),
-    and how many pairs of the join lay ``min_inliers`` or more so."""
-    backs = [behind for *_, behind, inliers in pairs if behind > inliers]
-    return max(backs, default=0), sum(b >= ConvergenceThresholds().min_inliers for b in backs)
+    pairs that lay more so than from the same side (0 when none), and how many pairs of the join the wall
+    check counts as laid back to back (:func:`~cistern_plugins.site_groups.laid_back_to_back`)."""
+    limits = ConvergenceThresholds()
+    backs = [p.quality.behind for p in pairs if p.quality.behind > p.quality.inliers]
+    return max(backs, default=0), sum(site_groups.laid_back_to_back(p.quality, limits) for p in pairs)
 
 
 def truth_pairs(scans, truth: SiteTruth) -> list[tuple[float, int, int]]:
@@ -121,8 +114,8 @@ def one_site(job: tuple[int, int]) -> dict:
         joins = []
         for pairs in recorder.calls:
             if pairs:
-                errors = [truth.displacement_error(a, b, x, y) for _, a, b, x, y, _, _ in pairs]
-                runs = sorted((p[0] for p in pairs), reverse=True)
+                errors = [truth.displacement_error(p.a, p.b, p.rel.x(), p.rel.y()) for p in pairs]
+                runs = sorted((p.quality.violation_run_m for p in pairs), reverse=True)
                 over = sum(r > limits.max_violation_run_m for r in runs)
                 joins.append((max(errors), runs[0], *back_to_back(pairs), over, runs[1] if len(runs) > 1 else 0.0))
         return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins}

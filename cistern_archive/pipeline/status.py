@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import re
+from itertools import groupby
 from collections.abc import Sequence
 from typing import Literal
 
@@ -143,21 +144,16 @@ def chain_breaks(scans_placed: Sequence[bool], labels: Sequence[str]) -> list[st
     ["The survey's chain breaks between a2 and b1: a station between them, in sight of both, could join b1–b2 to the map"]
     """
     hints = []
-    n = len(scans_placed)
     k = 0
-    while k < n:
-        if scans_placed[k]:
-            k += 1
-            continue
-        end = k
-        while end + 1 < n and not scans_placed[end + 1]:
-            end += 1
-        run = labels[k] if end == k else f"{labels[k]}–{labels[end]}"
-        if k > 0 or end + 1 < n:
-            near, far = (labels[k - 1], labels[k]) if k > 0 else (labels[end], labels[end + 1])
+    for placed, run in groupby(scans_placed, key=bool):
+        n = len(list(run))
+        if not placed and (k > 0 or k + n < len(scans_placed)):  # a run with a placed station beside it
+            first, last = labels[k], labels[k + n - 1]
+            near, far = (labels[k - 1], first) if k > 0 else (last, labels[k + n])
+            span = first if n == 1 else f"{first}–{last}"
             hints.append(f"The survey's chain breaks between {near} and {far}: a station between them, in sight "
-                         f"of both, could join {run} to the map")
-        k = end + 1
+                         f"of both, could join {span} to the map")
+        k += n
     return hints
 
 

@@ -7,14 +7,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import gtsam
 import numpy as np
 
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
-from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
+from cistern_plugins.alignment import AlignmentQuality, ConvergenceThresholds, ReferenceModel
 from cistern_plugins.factor_graph import Edge
 from cistern_plugins.group_clouds import Cloud, wall_spread
 from cistern_plugins.content_cache import ContentCache, scans_digest
@@ -155,6 +155,22 @@ of each of seeds 2 and 4 (``benchmarks/wall_tests.py --random 40 --seeds 2,4``),
 most one such pair (25–46 points) and the three wrong joins with such points had 4 and 34."""
 
 
+def laid_back_to_back(q: AlignmentQuality, limits: ConvergenceThresholds) -> bool:
+    """Whether a pair of scans lays ``min_inliers`` or more wall points on walls the other sonar saw from
+    the other side, more than it lays on walls seen from the same side (:meth:`WallCheck.conflict`)."""
+    return q.behind >= limits.min_inliers and q.behind > q.inliers
+
+
+class JoinPair(NamedTuple):
+    """One pair of scans across a join, as the join would place them: scan ``b`` (moved group) assessed
+    against scan ``a`` at their relative pose ``rel``."""
+
+    quality: AlignmentQuality
+    a: int
+    b: int
+    rel: gtsam.Pose2
+
+
 class WallCheck:
     """Whether joining two groups would put the walls one group's sonars saw into the water the other
     group's sonars saw (module docstring, step 2): every pair of scans of the two groups at one depth
@@ -178,6 +194,20 @@ class WallCheck:
         """Scan ``k``'s station label (its index when it has none)."""
         return self.scans[k].station or str(k)
 
+    def assess_join(self, graph: Graph, i: int, j: int, z: gtsam.Pose2) -> list[JoinPair]:
+        """Every pair of scans of the two groups at one depth level and within sonar range, placed as the
+        merge of ``j``'s group into ``i``'s by ``z`` would place them, assessed both ways
+        (:meth:`~cistern_plugins.alignment.ReferenceModel.assess_pair`)."""
+        offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+        pairs = []
+        for a in graph.members(graph.group[i]):
+            for b in graph.members(graph.group[j]):
+                sa, sb = self.scans[a], self.scans[b]
+                rel = graph.pose[a].between(offset.compose(graph.pose[b]))
+                if same_level(sa, sb, self.p) and math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
+                    pairs.append(JoinPair(self.model(a).assess_pair(sb, pose_array(rel), self.limits), a, b, rel))
+        return pairs
+
     def conflict(self, graph: Graph, i: int, j: int, z: gtsam.Pose2, *, shares_too: bool = True) -> str:
         """Empty when the merge of ``j``'s group into ``i``'s (:func:`_merge`) leaves the walls in place,
         else the reason, naming the stations of the worst pair. Three tests: no pair of the two groups
@@ -187,22 +217,10 @@ class WallCheck:
         other sonar saw from the other side, more than they lay on walls seen from the same side (two
         chambers back to back, the group form of :func:`~cistern_plugins.alignment.seen_from_behind`);
         and, with ``shares_too``, the median violation share stays within ``max_violation_ratio``."""
-        offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
-        shares: list[tuple[float, int, int]] = []
-        runs: list[tuple[float, int, int]] = []
-        backs: list[tuple[int, int, int, int]] = []
-        for a in graph.members(graph.group[i]):
-            for b in graph.members(graph.group[j]):
-                sa, sb = self.scans[a], self.scans[b]
-                rel = graph.pose[a].between(offset.compose(graph.pose[b]))
-                if not same_level(sa, sb, self.p) or math.hypot(rel.x(), rel.y()) > min(sa.max_range_m, sb.max_range_m):
-                    continue
-                q = self.model(a).assess_pair(sb, pose_array(rel), self.limits)
-                runs.append((q.violation_run_m, a, b))
-                if q.behind >= self.limits.min_inliers and q.behind > q.inliers:
-                    backs.append((q.behind, q.inliers, a, b))
-                if q.inliers >= self.limits.min_inliers:
-                    shares.append((q.violation_ratio, a, b))
+        pairs = self.assess_join(graph, i, j, z)
+        runs = [(q.violation_run_m, a, b) for q, a, b, _ in pairs]
+        backs = [(q.behind, q.inliers, a, b) for q, a, b, _ in pairs if laid_back_to_back(q, self.limits)]
+        shares = [(q.violation_ratio, a, b) for q, a, b, _ in pairs if q.inliers >= self.limits.min_inliers]
         run, a, b = max(runs, default=(0.0, -1, -1))
         if run > self.limits.max_violation_run_m:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
