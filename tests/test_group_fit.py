@@ -12,7 +12,7 @@ import pytest
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_archive.pipeline.contracts import MatchResult
 from cistern_plugins.group_clouds import Cloud, wall_spread
-from cistern_plugins.group_fit import GroupFitSettings, accept, fit_groups
+from cistern_plugins.group_fit import MAX_SIGMA, GroupFit, GroupFitSettings, accept, fit_groups, score_covariance
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
 
 # West chamber 5 m x 4 m, a tunnel 1 m wide and 1.5 m long, an east chamber of another shape.
@@ -120,3 +120,21 @@ def test_a_search_peak_the_refinement_does_not_confirm_is_refused():
     assert "does not hold once refined" in accept(fit, settings)
     held = GroupFit(pose=np.zeros(3), score=60.0, rival=20.6, best_coarse=174.0, covariance=np.eye(3) * 1e-4)
     assert accept(held, settings) == ""
+
+
+def test_a_fit_that_slides_along_a_ridge_of_its_score_is_refused():
+    """A fit clear of its rivals whose covariance leaves it 4 m to slide one way places nothing; the
+    same fit fixed to 0.5 m is accepted."""
+    ridge = GroupFit(pose=np.zeros(3), score=90.0, rival=10.0, best_coarse=100.0,
+                     covariance=np.array([[8.0, -7.9, 0.0], [-7.9, 8.0, 0.0], [0.0, 0.0, 1e-4]]))
+    assert "open along one direction: σ ≈ 4.0 m" in accept(ridge, GroupFitSettings())
+    fixed = GroupFit(ridge.pose, ridge.score, ridge.rival, ridge.best_coarse, np.diag([0.25, 0.01, 1e-4]))
+    assert accept(fixed, GroupFitSettings()) == ""
+
+
+def test_a_flat_score_gives_the_widest_covariance_in_metres_and_degrees():
+    def flat(poses, *, prior=True):
+        return np.zeros(len(poses))
+
+    cov = score_covariance(flat, np.array([1.0, 2.0, 0.1]))
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), [MAX_SIGMA, MAX_SIGMA, math.radians(MAX_SIGMA)], rtol=1e-6)

@@ -34,7 +34,9 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
-farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, and neither group is a tunnel seen from inside (two parallel walls fit
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, the score's curvature fixes the
+place to ``max_sigma_m`` in every direction (a fit that slides along a ridge of the score places nothing),
+and neither group is a tunnel seen from inside (two parallel walls fit
 every passage of their width, :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no
 stretch of wall across water, walls not in the water of the other scans) before it merges the groups.
 """
@@ -55,8 +57,10 @@ from cistern_plugins.group_clouds import BORDER_M, ORIENTATIONS, Cloud, Raster, 
 
 SCORE_TEMPERATURE = 4.0
 """Cells of score per unit of log-likelihood when the score's curvature becomes a covariance."""
-MAX_SIGMA_M = 0.5
-MAX_SIGMA_DEG = 5.0
+MAX_SIGMA = 5.0
+"""The widest standard deviation a fit's covariance takes along any direction, in metres for a
+translation and degrees for a turn (the score's curvature is floored there, so that a direction the
+score cannot tell apart keeps a finite, wide sigma)."""
 POLISH_TOLERANCE = 1.0
 """The point-to-line polish is kept unless it loses more than this (cells of wall) of the score."""
 
@@ -76,6 +80,7 @@ class GroupFitSettings:
     min_refined_share: float = 0.2
     ambiguity_ratio: float = 0.7
     separation_m: float = 0.5
+    max_sigma_m: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -282,6 +287,10 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     if fit.score < s.min_refined_share * fit.best_coarse:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search")
+    sigma = math.sqrt(max(float(np.linalg.eigvalsh(fit.covariance[:2, :2])[-1]), 0.0))
+    if sigma > s.max_sigma_m:
+        return (f"the fit leaves the place open along one direction: σ ≈ {sigma:.1f} m (> {s.max_sigma_m:.1f} m), "
+                "as walls that all run one way give")
     if fit.rival > s.ambiguity_ratio * fit.best_coarse:
         return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
                 f"the best {fit.best_coarse:.0f}")
@@ -292,7 +301,7 @@ def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
     """Covariance of a fit's pose from the curvature of its score (a Laplace approximation): a quadratic
     fitted to ``S`` over ±0.1 m and ±0.5° around ``pose``, read as a log-likelihood at
     ``SCORE_TEMPERATURE`` cells per unit. A direction the score cannot tell apart (along a tunnel seen
-    from both ends) gets a wide sigma, up to ``MAX_SIGMA_M`` and ``MAX_SIGMA_DEG``. The turn is about
+    from both ends) gets a wide sigma, up to :data:`MAX_SIGMA` (metres, degrees). The turn is about
     B's frame origin (``pose[:2]``), as ``pose`` turns B."""
     d = np.arange(-2, 3) * 0.05
     t = np.radians(np.arange(-1, 2) * 0.5)
@@ -301,11 +310,10 @@ def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
     design = np.column_stack([np.ones_like(dx), dx, dy, dt, dx * dx, dy * dy, dt * dt, dx * dy, dx * dt, dy * dt])
     c = np.linalg.lstsq(design, values, rcond=None)[0]
     hessian = -np.array([[2 * c[4], c[7], c[8]], [c[7], 2 * c[5], c[9]], [c[8], c[9], 2 * c[6]]])
-    scale = np.array([1.0, 1.0, 1.0 / math.radians(1.0)])  # condition metres against radians
-    low = np.diag(1.0 / np.array([MAX_SIGMA_M, MAX_SIGMA_M, math.radians(MAX_SIGMA_DEG)]) ** 2) * SCORE_TEMPERATURE
+    scale = np.array([1.0, 1.0, 1.0 / math.radians(1.0)])  # metres and degrees: comparable curvatures
     scaled = hessian / np.outer(scale, scale)
     vals, vecs = np.linalg.eigh(0.5 * (scaled + scaled.T))
-    floor = np.min(np.diag(low) / scale**2)
+    floor = SCORE_TEMPERATURE / MAX_SIGMA**2
     information = (vecs * np.maximum(vals, floor)) @ vecs.T * np.outer(scale, scale)
     cov = SCORE_TEMPERATURE * np.linalg.inv(information)
     return 0.5 * (cov + cov.T)
