@@ -133,6 +133,8 @@ def test_a_fit_that_slides_along_a_ridge_of_its_score_is_refused():
 
 
 def test_a_flat_score_gives_the_widest_covariance_in_metres_and_degrees():
+    """A score that does not change around the pose gives every direction the widest sigma."""
+
     def flat(poses, *, prior=True):
         return np.zeros(len(poses))
 

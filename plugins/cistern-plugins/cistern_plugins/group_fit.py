@@ -34,11 +34,12 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
-farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, the score's curvature fixes the
-place to ``max_sigma_m`` in every direction (a fit that slides along a ridge of the score places nothing),
-and neither group is a tunnel seen from inside (two parallel walls fit
-every passage of their width, :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no
-stretch of wall across water, walls not in the water of the other scans) before it merges the groups.
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, the score's curvature
+fixes the place to ``max_sigma_m`` in every direction (a fit that slides along a ridge of the score
+places nothing), and neither group is a tunnel seen from inside (two parallel walls fit every passage
+of their width, :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to
+its own wall check (no stretch of wall across water, walls not in the water of the other scans) before
+it merges the groups.
 """
 
 from __future__ import annotations
