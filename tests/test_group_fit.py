@@ -122,16 +122,6 @@ def test_a_search_peak_the_refinement_does_not_confirm_is_refused():
     assert accept(held, settings) == ""
 
 
-def test_a_fit_that_slides_along_a_ridge_of_its_score_is_refused():
-    """A fit clear of its rivals whose covariance leaves it 4 m to slide one way places nothing; the
-    same fit fixed to 0.5 m is accepted."""
-    ridge = GroupFit(pose=np.zeros(3), score=90.0, rival=10.0, best_coarse=100.0,
-                     covariance=np.array([[8.0, -7.9, 0.0], [-7.9, 8.0, 0.0], [0.0, 0.0, 1e-4]]))
-    assert "open along one direction: σ ≈ 4.0 m" in accept(ridge, GroupFitSettings())
-    fixed = GroupFit(ridge.pose, ridge.score, ridge.rival, ridge.best_coarse, np.diag([0.25, 0.01, 1e-4]))
-    assert accept(fixed, GroupFitSettings()) == ""
-
-
 def test_a_flat_score_gives_the_widest_covariance_in_metres_and_degrees():
     """A score that does not change around the pose gives every direction the widest sigma."""
 

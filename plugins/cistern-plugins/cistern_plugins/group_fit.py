@@ -34,12 +34,11 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
-farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, the score's curvature
-fixes the place to ``max_sigma_m`` in every direction (a fit that slides along a ridge of the score
-places nothing), and neither group is a tunnel seen from inside (two parallel walls fit every passage
-of their width, :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to
-its own wall check (no stretch of wall across water, walls not in the water of the other scans) before
-it merges the groups.
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, and neither group is a
+tunnel seen from inside (two parallel walls fit every passage of their width,
+:func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check
+(no stretch of wall across water, walls not in the water of the other scans) before it merges the
+groups.
 """
 
 from __future__ import annotations
@@ -81,7 +80,6 @@ class GroupFitSettings:
     min_refined_share: float = 0.2
     ambiguity_ratio: float = 0.7
     separation_m: float = 0.5
-    max_sigma_m: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -288,10 +286,6 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     if fit.score < s.min_refined_share * fit.best_coarse:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search")
-    sigma = math.sqrt(max(float(np.linalg.eigvalsh(fit.covariance[:2, :2])[-1]), 0.0))
-    if sigma > s.max_sigma_m:
-        return (f"the fit leaves the place open along one direction: σ ≈ {sigma:.1f} m (> {s.max_sigma_m:.1f} m), "
-                "as walls that all run one way give")
     if fit.rival > s.ambiguity_ratio * fit.best_coarse:
         return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
                 f"the best {fit.best_coarse:.0f}")

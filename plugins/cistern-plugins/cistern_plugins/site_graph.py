@@ -147,14 +147,12 @@ class SiteGraphParams(GraphParams):
                                       "costs, against 1 for an agreeing one")
     group_yaw_window_deg: float = Field(6.0, ge=0, le=45, description="heading window of a group fit "
                                         "(three times a Micron-class compass's 2° noise)")
-    group_max_sigma_m: float = Field(2.0, gt=0, description="a group fit joins only when the curvature of its "
-                                     "score fixes the place to this (one standard deviation) in every direction")
 
     def group_settings(self) -> GroupFitSettings:
         """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""
         return GroupFitSettings(min_score=self.group_min_score, ambiguity_ratio=self.group_ambiguity_ratio,
                                 free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg,
-                                compass_sigma_deg=self.compass_sigma_deg, max_sigma_m=self.group_max_sigma_m)
+                                compass_sigma_deg=self.compass_sigma_deg)
 
 
 class SiteGraphLocalizer(GuidedLocalizer):
