@@ -241,9 +241,10 @@ class WallCheck:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
                     f"({self.label(a)} – {self.label(b)}; at most {self.limits.max_violation_run_m:.2f} m)")
         two_way = [q.violation_min for q, _, _, _ in pairs if q.inliers >= self.limits.min_inliers]
-        if len(two_way) >= TWO_WAY_PAIRS and float(np.median(two_way)) > TWO_WAY_SHARE:
+        both_ways = float(np.median(two_way)) if len(two_way) >= TWO_WAY_PAIRS else 0.0
+        if both_ways > TWO_WAY_SHARE:
             return (f"joining its groups would put walls into water both ways: over {len(two_way)} pairs, a median "
-                    f"{100 * float(np.median(two_way)):.1f} % of each sonar's wall points fall in the water the other saw "
+                    f"{100 * both_ways:.1f} % of each sonar's wall points fall in the water the other saw "
                     f"(at most {100 * TWO_WAY_SHARE:.0f} %), as a look-alike chamber laid a little off")
         if len(backs) >= BACK_TO_BACK_PAIRS:
             behind, front, a, b = max(backs)
