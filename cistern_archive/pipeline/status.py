@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import math
 import re
-from itertools import groupby
 from collections.abc import Sequence
+from itertools import groupby
 from typing import Literal
 
 SiteStatus = Literal["ok", "partial", "failed"]

@@ -235,15 +235,15 @@ class WallCheck:
         pairs = self.assess_join(graph, i, j, z)
         runs = [(q.violation_run_m, a, b) for q, a, b, _ in pairs]
         backs = [(q.behind, q.inliers, a, b) for q, a, b, _ in pairs if laid_back_to_back(q, self.limits)]
-        shares = [(q.violation_ratio, a, b) for q, a, b, _ in pairs if q.inliers >= self.limits.min_inliers]
+        sharing = [p for p in pairs if p.quality.inliers >= self.limits.min_inliers]
+        shares = [(q.violation_ratio, a, b) for q, a, b, _ in sharing]
         run, a, b = max(runs, default=(0.0, -1, -1))
         if run > self.limits.max_violation_run_m:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
                     f"({self.label(a)} – {self.label(b)}; at most {self.limits.max_violation_run_m:.2f} m)")
-        two_way = [q.violation_min for q, _, _, _ in pairs if q.inliers >= self.limits.min_inliers]
-        both_ways = float(np.median(two_way)) if len(two_way) >= TWO_WAY_PAIRS else 0.0
+        both_ways = float(np.median([p.quality.violation_min for p in sharing])) if len(sharing) >= TWO_WAY_PAIRS else 0.0
         if both_ways > TWO_WAY_SHARE:
-            return (f"joining its groups would put walls into water both ways: over {len(two_way)} pairs, a median "
+            return (f"joining its groups would put walls into water both ways: over {len(sharing)} pairs, a median "
                     f"{100 * both_ways:.1f} % of each sonar's wall points fall in the water the other saw "
                     f"(at most {100 * TWO_WAY_SHARE:.0f} %), as a look-alike chamber laid a little off")
         if len(backs) >= BACK_TO_BACK_PAIRS:
