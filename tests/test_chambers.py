@@ -147,6 +147,14 @@ def test_settings_give_longer_tunnels_surveyed_along_their_length():
     assert tunnels >= 5
 
 
+def test_settings_set_the_sonar_and_its_other_effects():
+    settings = GeneratorSettings(bin_m=0.08, step_deg=1.8, sonar={"beam_width_deg": 4.0}, effects={"speckle_looks": 1.0})
+    for cistern in random_cisterns(10, seed=7, settings=settings):
+        sonar, effects = cistern.spec.sonar, cistern.spec.effects
+        assert sonar.step_deg == 1.8 and sonar.beam_width_deg == 4.0 and effects.speckle_looks == 1.0
+        assert sonar.range_m / sonar.bins == pytest.approx(0.08)
+
+
 def test_settings_set_the_compass_and_the_clutter_and_refuse_bad_ranges():
     settings = GeneratorSettings(compass_bias_deg=4.0, compass_sigma_deg=4.0, multipath_fraction=(0.2, 0.2),
                                  spike_rate=0.02)
@@ -156,6 +164,8 @@ def test_settings_set_the_compass_and_the_clutter_and_refuse_bad_ranges():
     assert all(e.multipath_fraction == 0.2 and e.spike_rate == 0.02 for e in effects)
     with pytest.raises(ValueError, match="tunnel_length_m"):
         GeneratorSettings(tunnel_length_m=(3.0, 2.0))
+    with pytest.raises(ValueError, match="beam_widht_deg"):  # the simulator's spec refuses what it does not know
+        random_cisterns(1, seed=7, settings=GeneratorSettings(sonar={"beam_widht_deg": 4.0}))
     with pytest.raises(ValueError):
         GeneratorSettings(tunnel_lenght_m=(1.0, 2.0))  # a misspelt setting is an error, not a default
 

@@ -26,7 +26,8 @@ always on to the nearest, the tunnel's station between two chambers; each heads 
 vehicle echo, on by default; walls of roughness 0.03–0.3; range 6, 8 or 10 m in 4 cm bins, 0.9°
 steps); the compass has a bias of up to ±2° and 2° of noise. The records carry the true poses
 (``truth``), as the demo specs' records do. :class:`GeneratorSettings` changes the tunnels' length and
-width, how a tunnel is surveyed, the compass and the clutter, for studies of sites unlike these.
+width, how a tunnel is surveyed, the compass, the clutter and the sonar (its bin, its step and any other
+setting of the simulator), for studies of sites unlike these.
 
 >>> cistern = random_cistern(np.random.default_rng(1), index=0)   # doctest: +SKIP
 >>> site = simulate_site(cistern.spec)                            # doctest: +SKIP
@@ -60,6 +61,8 @@ COMPASS_BIAS_DEG = 2.0
 COMPASS_SIGMA_DEG = 2.0
 YAW_JITTER_DEG = 20.0
 MULTIPATH_FRACTION = (0.04, 0.10)
+BIN_M = 0.04
+STEP_DEG = 0.9
 
 
 class GeneratorSettings(BaseModel):
@@ -81,6 +84,12 @@ class GeneratorSettings(BaseModel):
     compass_sigma_deg: float = Field(COMPASS_SIGMA_DEG, ge=0, description="compass noise per scan")
     multipath_fraction: tuple[float, float] = Field(MULTIPATH_FRACTION, description="range of the share of beams with a ghost")
     spike_rate: float | None = Field(None, ge=0, description="isolated spikes per beam (unset: the simulator's default)")
+    bin_m: float = Field(BIN_M, gt=0, description="the sonar's range bin")
+    step_deg: float = Field(STEP_DEG, gt=0, description="the sonar head's step between beams")
+    sonar: dict[str, float] = Field(default_factory=dict,
+                                    description="other settings of the sonar (SimulationSpec's sonar), e.g. beam_width_deg")
+    effects: dict[str, float] = Field(default_factory=dict,
+                                      description="other effects (SimulationSpec's effects), e.g. speckle_looks")
 
     @model_validator(mode="after")
     def _ranges_ordered(self) -> "GeneratorSettings":
@@ -413,11 +422,13 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         "site": {"water_depth_m": _round(depth + rng.uniform(0.8, 1.5), 2),
                  "levels": [{"depth_m": 0.0, "walls": {"polygon": [[_round(x), _round(y)] for x, y in layout.outline]},
                              "wall_roughness": _round(rng.uniform(0.03, 0.3))}]},
-        "sonar": {"range_m": range_m, "bins": int(round(range_m / 0.04)), "step_deg": 0.9},
+        "sonar": {"range_m": range_m, "bins": int(round(range_m / settings.bin_m)), "step_deg": settings.step_deg,
+                  **settings.sonar},
         "effects": {"compass_bias_deg": _round(rng.uniform(-settings.compass_bias_deg, settings.compass_bias_deg), 2),
                     "compass_sigma_deg": settings.compass_sigma_deg,
                     "multipath_fraction": _round(rng.uniform(*settings.multipath_fraction)),
-                    **({} if settings.spike_rate is None else {"spike_rate": settings.spike_rate})},
+                    **({} if settings.spike_rate is None else {"spike_rate": settings.spike_rate}),
+                    **settings.effects},
         "segmentation": {"min_range_m": 0.4},
         "stations": [
             {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
