@@ -14,6 +14,10 @@ and the bell-shaped cistern apart:
 * ``shallow``: the same kind of sites in 0.8-1.6 m of water with the head 0.15-0.4 m above the floor or
   below the surface and floor reverberation 3-9 dB stronger than the default, so the lobe meets the floor
   (or surface) within 0.5-1.4 m and reverberation fills most of every beam.
+* ``speckle``: the ``chambers`` sites again under fully developed speckle (one look: exponentially
+  distributed intensities, against the simulator's default of three looks), as a single-look head
+  without averaging hears them; the near field's speckle then peaks above the shadow rule's first two
+  tests on many beams.
 
 Per beam the segmented range is compared with the true range along the beam's axis (``inf`` when the wall
 is beyond the range setting): ``hit`` within ``TOL_BINS`` (2) bins; ``false`` walls are echoes more than
@@ -163,7 +167,7 @@ def random_chambers(seed: int, shallow: bool) -> SimulationSpec:
 def simulated_sets(which: str, n_sites: int) -> dict[str, list[tuple[SimulationSpec, list]]]:
     """The simulated scans of one seed set, by family: ``{family: [(spec, scans), ...]}``."""
     base = SEED_BASE[which]
-    families: dict[str, list] = {"demo": [], "bell": [], "chambers": [], "shallow": []}
+    families: dict[str, list] = {"demo": [], "bell": [], "chambers": [], "shallow": [], "speckle": []}
     demo_seeds = [1000, 2000] if which == "report" else [3000]
     for spec_path in sorted((ROOT / "catalog" / "specs").glob("*.yaml")):
         spec0 = load_spec(spec_path)
@@ -175,7 +179,16 @@ def simulated_sets(which: str, n_sites: int) -> dict[str, list[tuple[SimulationS
         for family, shallow in (("chambers", False), ("shallow", True)):
             spec = random_chambers(base + k, shallow)
             families[family].append((spec, simulate_site(spec).scans))
+        spec = one_look(random_chambers(base + k, False))
+        families["speckle"].append((spec, simulate_site(spec).scans))
     return families
+
+
+def one_look(spec: SimulationSpec) -> SimulationSpec:
+    """The same site under fully developed speckle: one look, exponentially distributed intensities (the
+    simulator's default is three looks)."""
+    return spec.model_copy(update={"id": spec.id + "-one-look",
+                                   "effects": spec.effects.model_copy(update={"speckle_looks": 1.0})})
 
 
 def beam_outcomes(sim, settings: Segmentation) -> dict[str, np.ndarray]:
@@ -388,7 +401,7 @@ def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.n
 
 
 def simulated_figures(families: dict[str, list], figures: Path) -> None:
-    for family in ("chambers", "shallow", "demo"):
+    for family in ("chambers", "shallow", "speckle", "demo"):
         spec, scans = families[family][0]
         sim = scans[0]
         seen = sim.truth_ranges_m[np.isfinite(sim.truth_ranges_m)]

@@ -13,6 +13,7 @@ from cistern_archive.core.scan import Scan
 from cistern_archive.simulation.simulator import TruePose, simulate_scan
 from cistern_archive.simulation.spec import EffectsSpec, SonarSpec
 from cistern_archive.sonar.readers import read_file
+from cistern_archive.sonar import segmentation
 from cistern_archive.sonar.segmentation import (
     METHODS,
     normalise_paper,
@@ -285,3 +286,68 @@ def test_real_ping360_ring_down_is_a_wall_for_the_paper_rule_only(shared_data):
         ranges = segment(scans[0], Segmentation(method=method, min_range_m=0.5))
         at_edge = np.mean(ranges.ranges_m[ranges.valid] <= 0.6)
         assert low <= at_edge <= high, (method, at_edge)
+
+
+# --- what every beam holds at one range ------------------------------------------------------------
+
+def _box_scan(seed: int, looks: float):
+    """A box 4 m x 3 m in 3 m of water, the head at 1.5 m depth, under fully developed speckle (one look)."""
+    return simulate_scan([np.array([[0, 0], [4.0, 0], [4.0, 3.0], [0, 3.0]])], TruePose("t", 1.4, 1.1, 0.3, 1.5),
+                         SonarSpec(range_m=6.0, bins=150), EffectsSpec(speckle_looks=looks),
+                         np.random.default_rng(seed), water_depth_m=3.0)
+
+
+def _outcomes(sim, settings: Segmentation) -> tuple[float, float]:
+    """Share of beams on the wall (within two bins), share with an echo more than two bins before it."""
+    ranges = segment(sim.scan, settings).ranges_m
+    error = ranges - sim.truth_ranges_m
+    tol = 2 * sim.scan.bin_size_m
+    return float(np.mean(np.abs(error) <= tol)), float(np.mean(error < -tol))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_shadow_drops_near_field_speckle_that_every_beam_holds(seed, monkeypatch):
+    settings = Segmentation(method="shadow", min_range_m=0.4)
+    sim = _box_scan(seed, looks=1.0)
+    with_test = _outcomes(sim, settings)
+    monkeypatch.setattr(segmentation, "COMMON_MARGIN", None)
+    without = _outcomes(sim, settings)
+    assert without[1] > 0.04  # the near field's speckle peaks pass the lead and shadow tests
+    assert with_test[1] < 0.4 * without[1]
+    assert with_test[0] >= without[0]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_shadow_keeps_walls_inside_shallow_water_reverberation(seed, monkeypatch):
+    """The head 0.25 m above the floor in 1 m of water: reverberation holds one level over most of every
+    beam, so the common level is not tested there (only where it falls off, as the near field does)."""
+    sim = simulate_scan([np.array([[0, 0], [4.0, 0], [4.0, 3.0], [0, 3.0]])], TruePose("t", 1.4, 1.1, 0.3, 0.75),
+                        SonarSpec(range_m=6.0, bins=150), EffectsSpec(floor_db=-16.0), np.random.default_rng(seed),
+                        water_depth_m=1.0)
+    settings = Segmentation(method="shadow", min_range_m=0.4)
+    hit = _outcomes(sim, settings)[0]
+    monkeypatch.setattr(segmentation, "COMMON_DECAY", -np.inf)  # the common level tested everywhere
+    everywhere = _outcomes(sim, settings)[0]
+    monkeypatch.setattr(segmentation, "COMMON_MARGIN", None)
+    untested = _outcomes(sim, settings)[0]
+    assert hit > everywhere + 0.01
+    assert hit >= untested - 0.04
+
+
+@pytest.mark.parametrize("offset_m", [0.0, 0.3])
+def test_a_round_well_seen_from_its_centre_keeps_its_wall(offset_m):
+    # Every beam meets the wall at one range, so the across-beam median there is the wall, not clutter.
+    ring = np.array([[2.0 * math.cos(t), 2.0 * math.sin(t)] for t in np.linspace(0, 2 * math.pi, 72, endpoint=False)])
+    sim = simulate_scan([ring], TruePose("c", offset_m, 0.0, 0.0, 1.5), SonarSpec(range_m=6.0, bins=150),
+                        EffectsSpec(), np.random.default_rng(5), water_depth_m=3.0)
+    hit, before = _outcomes(sim, Segmentation(method="shadow", min_range_m=0.4))
+    assert hit > 0.95 and before < 0.02
+
+
+def test_full_turn_is_told_from_a_sector():
+    step = math.radians(0.9)
+    turn = np.arange(400) * step
+    assert segmentation.full_turn(turn)
+    assert segmentation.full_turn(np.delete(turn, [10, 11, 12]))  # a few beams lost
+    assert not segmentation.full_turn(turn[:100])  # a 90° sector
+    assert not segmentation.full_turn(turn[:5])

@@ -56,13 +56,25 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        bin, the shadow cannot be seen and nothing is detected: the last
        ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range setting (0.38 m) hold no walls, where the
        receiver noise, amplified most by the time-varying gain, would otherwise pass the test;
-    4. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
+    4. **a wall stands out from what every beam holds at its range**: on a full turn of the head
+       (:func:`full_turn`), where the across-beam median of the smoothed image falls off with range as
+       the near field does (by ``COMMON_DECAY`` over the shadow's window), a detection must also exceed
+       that median by ``COMMON_MARGIN`` (:func:`common_clutter`). The near field and the ring-down are
+       common to all beams, a wall belongs to a few: under fully developed speckle (one look,
+       exponential intensities) the near field's peaks 0.5-1 m out pass the two tests above on about
+       one beam in ten, because the near field decays behind them as it would behind a wall; this test
+       removes most of them. Where the median holds one level (floor reverberation in shallow water)
+       the test is not made: a wall need only rise above the reverberation as before. Where the median
+       itself rises and casts a shadow (a round well seen from its centre, every beam meeting the wall
+       at one range) it is a wall, and those ranges are not tested; nor is a sector scan, whose few
+       beams may all meet one wall;
+    5. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
        and may be stronger; a ghost casts no shadow over the wall in front of it) starts the echo, which
        lasts while the smoothed beam stays above the threshold, for at most ``SHADOW_ECHO_M``; its
        largest smoothed value is the echo's peak. A wall met obliquely returns first from the edge of the
        3° beam nearest to it, so the peak, where the beam's axis meets the wall, can lie a few bins after
        the first detection;
-    5. the range is sub-bin, as in ``cfar`` (step 6).
+    6. the range is sub-bin, as in ``cfar`` (step 6).
 
     Windows are in metres (at least one bin), so heads with 2 mm bins and heads with 6 cm bins see the
     same physical extents. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the tuning
@@ -97,6 +109,11 @@ SHADOW_MARGIN = 65.0
 SHADOW_LEAD_MARGIN = 20.0
 SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
+SHADOW_SMOOTH_M = 3 * TUNED_BIN_M
+COMMON_MARGIN = 60.0
+COMMON_PERCENTILE = 50.0
+COMMON_DECAY = 20.0
+FULL_TURN_GAPS = 10
 METHODS = ("paper", "cfar", "shadow")
 
 
@@ -270,20 +287,21 @@ def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, gu
 
 
 def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Detection mask and normalised smoothed image of the ``shadow`` method (steps 1-3).
+    """Detection mask and normalised smoothed image of the ``shadow`` method (steps 1-4).
 
     Returns
     -------
     detections : ndarray of bool, shape (A, B)
         Bins beyond ``min_range_m`` above ``threshold``, ``SHADOW_LEAD_MARGIN`` above their leading
-        training mean and ``SHADOW_MARGIN`` above the median of the water behind them.
+        training mean, ``SHADOW_MARGIN`` above the median of the water behind them and, on a full turn,
+        ``COMMON_MARGIN`` above the level every beam holds at their range.
     smooth : ndarray of float64, shape (A, B)
         The image smoothed over 0.12 m along each beam, normalised to 0..255 by its maximum beyond
         ``min_range_m``.
     """
     bin_m = scan.bin_size_m
     values = _blank_near(scan, 0.0)
-    width = 2 * (_bins(3 * TUNED_BIN_M, bin_m) // 2) + 1
+    width = 2 * (_bins(SHADOW_SMOOTH_M, bin_m) // 2) + 1
     smooth = _moving_average(values, width, axis=1)
     far = scan.bin_centres_m >= min_range_m
     peak = float(smooth[:, far].max()) if smooth[:, far].size else 0.0
@@ -292,13 +310,45 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple
     smooth *= PAPER_SCALE / peak
     noise = _leading_noise(smooth, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
     candidates = (smooth > threshold) & (smooth - noise >= SHADOW_LEAD_MARGIN) & far[None, :]
-    beams, bins = np.nonzero(candidates)
     guard, trail = _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m)
+    if COMMON_MARGIN is not None and full_turn(scan.bearings_rad):
+        candidates &= smooth - common_clutter(smooth, threshold, far, bin_m)[None, :] >= COMMON_MARGIN
+    beams, bins = np.nonzero(candidates)
     behind = _trailing_median(smooth, beams, bins, guard, trail)
     shadowed = smooth[beams, bins] - behind >= SHADOW_MARGIN
     detections = np.zeros_like(candidates)
     detections[beams, bins] = shadowed
     return detections, np.where(far[None, :], smooth, 0.0)
+
+
+def full_turn(bearings_rad: np.ndarray) -> bool:
+    """Whether the beams cover a whole turn: no gap between neighbouring bearings wider than
+    ``FULL_TURN_GAPS`` times the median step (a sector scan's beams may all meet one wall at one range)."""
+    if bearings_rad.size < 8:
+        return False
+    ordered = np.sort(np.mod(bearings_rad, 2 * np.pi))
+    gaps = np.diff(np.concatenate([ordered, ordered[:1] + 2 * np.pi]))
+    return bool(gaps.max() <= FULL_TURN_GAPS * np.median(gaps))
+
+
+def common_clutter(smooth: np.ndarray, threshold: float, far: np.ndarray, bin_m: float) -> np.ndarray:
+    """The level every beam holds at each range (the across-beam median of the smoothed image) where it
+    falls off by ``COMMON_DECAY`` over the shadow's window behind (the near field, the ring-down);
+    ``-inf`` elsewhere, and over a wall that most beams see at one range (a round well seen from its
+    centre: the median rises above what precedes it and casts a shadow, as a wall does) and its echo's
+    length."""
+    common = np.percentile(smooth, COMMON_PERCENTILE, axis=0)
+    profile = common[None, :]
+    guard, trail = _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m)
+    every = np.arange(common.size)
+    decay = common - _trailing_median(profile, np.zeros_like(every), every, guard, trail)
+    lead = _leading_noise(profile, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
+    rising = np.flatnonzero((profile[0] > threshold) & (profile[0] - lead[0] >= SHADOW_LEAD_MARGIN) & far)
+    walls = rising[decay[rising] >= SHADOW_MARGIN]
+    out = np.where(decay >= COMMON_DECAY, common, -np.inf)
+    for start in walls:
+        out[start:start + _bins(SHADOW_ECHO_M, bin_m) + 1] = -np.inf
+    return out
 
 
 def _echo_peaks(detections: np.ndarray, smooth: np.ndarray, threshold: float, longest: int) -> np.ndarray:
