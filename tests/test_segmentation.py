@@ -310,7 +310,7 @@ def test_shadow_drops_near_field_speckle_that_every_beam_holds(seed, monkeypatch
     settings = Segmentation(method="shadow", min_range_m=0.4)
     sim = _box_scan(seed, looks=1.0)
     with_test = _outcomes(sim, settings)
-    monkeypatch.setattr(segmentation, "COMMON_MARGIN", None)
+    monkeypatch.setattr(segmentation, "COMMON_MARGIN", -np.inf)  # no common-level test
     without = _outcomes(sim, settings)
     assert without[1] > 0.04  # the near field's speckle peaks pass the lead and shadow tests
     assert with_test[1] < 0.4 * without[1]
@@ -328,7 +328,7 @@ def test_shadow_keeps_walls_inside_shallow_water_reverberation(seed, monkeypatch
     hit = _outcomes(sim, settings)[0]
     monkeypatch.setattr(segmentation, "COMMON_DECAY", -np.inf)  # the common level tested everywhere
     everywhere = _outcomes(sim, settings)[0]
-    monkeypatch.setattr(segmentation, "COMMON_MARGIN", None)
+    monkeypatch.setattr(segmentation, "COMMON_MARGIN", -np.inf)  # no common-level test
     untested = _outcomes(sim, settings)[0]
     assert hit > everywhere + 0.01
     assert hit >= untested - 0.04

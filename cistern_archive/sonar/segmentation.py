@@ -311,7 +311,7 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple
     noise = _leading_noise(smooth, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
     candidates = (smooth > threshold) & (smooth - noise >= SHADOW_LEAD_MARGIN) & far[None, :]
     guard, trail = _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m)
-    if COMMON_MARGIN is not None and full_turn(scan.bearings_rad):
+    if full_turn(scan.bearings_rad):
         candidates &= smooth - common_clutter(smooth, threshold, far, bin_m)[None, :] >= COMMON_MARGIN
     beams, bins = np.nonzero(candidates)
     behind = _trailing_median(smooth, beams, bins, guard, trail)
