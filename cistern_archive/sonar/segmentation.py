@@ -56,18 +56,19 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        bin, the shadow cannot be seen and nothing is detected: the last
        ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range setting (0.38 m) hold no walls, where the
        receiver noise, amplified most by the time-varying gain, would otherwise pass the test;
-    4. **a wall stands out from what every beam holds at its range**: on a full turn of the head
-       (:func:`full_turn`), where the across-beam median of the smoothed image falls off with range as
-       the near field does (by ``COMMON_DECAY`` over the shadow's window), a detection must also exceed
-       that median by ``COMMON_MARGIN`` (:func:`common_clutter`). The near field and the ring-down are
-       common to all beams, a wall belongs to a few: under fully developed speckle (one look,
-       exponential intensities) the near field's peaks 0.5-1 m out pass the two tests above on about
-       one beam in ten, because the near field decays behind them as it would behind a wall; this test
-       removes most of them. Where the median holds one level (floor reverberation in shallow water)
-       the test is not made: a wall need only rise above the reverberation as before. Where the median
-       itself rises and casts a shadow (a round well seen from its centre, every beam meeting the wall
-       at one range) it is a wall, and those ranges are not tested; nor is a sector scan, whose few
-       beams may all meet one wall;
+    4. **in the near field, a wall stands out from what every beam holds at its range**: on a full turn
+       of the head (:func:`full_turn`), from the blanking range on as long as the across-beam median of
+       the smoothed image falls off with range (by ``COMMON_DECAY`` over the shadow's window:
+       :func:`near_field`), a detection must also exceed that median by ``COMMON_MARGIN``
+       (:func:`common_clutter`). The near field and the ring-down are common to all beams, a wall
+       belongs to a few: under fully developed speckle (one look, exponential intensities) the near
+       field's peaks 0.5-1 m out pass the two tests above on about one beam in ten, because the near
+       field decays behind them as it would behind a wall; this test removes most of them. Beyond the
+       near field (floor reverberation in shallow water, the water column) the test is not made: a wall
+       need only rise above what is in front of it, as before. Where the median itself rises and casts
+       a shadow (a round well seen from its centre, every beam meeting the wall at one range) it is a
+       wall, and those ranges are not tested; nor is a sector scan, whose few beams may all meet one
+       wall;
     5. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
        and may be stronger; a ghost casts no shadow over the wall in front of it) starts the echo, which
        lasts while the smoothed beam stays above the threshold, for at most ``SHADOW_ECHO_M``; its
@@ -112,7 +113,7 @@ TUNED_BIN_M = 0.04
 SHADOW_SMOOTH_M = 3 * TUNED_BIN_M
 COMMON_MARGIN = 60.0
 COMMON_PERCENTILE = 50.0
-COMMON_DECAY = 20.0
+COMMON_DECAY = 10.0
 FULL_TURN_GAPS = 10
 METHODS = ("paper", "cfar", "shadow")
 
@@ -332,23 +333,35 @@ def full_turn(bearings_rad: np.ndarray) -> bool:
 
 
 def common_clutter(smooth: np.ndarray, threshold: float, far: np.ndarray, bin_m: float) -> np.ndarray:
-    """The level every beam holds at each range (the across-beam median of the smoothed image) where it
-    falls off by ``COMMON_DECAY`` over the shadow's window behind (the near field, the ring-down);
-    ``-inf`` elsewhere, and over a wall that most beams see at one range (a round well seen from its
-    centre: the median rises above what precedes it and casts a shadow, as a wall does) and its echo's
-    length."""
+    """The level every beam holds at each range (the across-beam median of the smoothed image) over the
+    near field: from ``far``'s first bin as long as that level falls off by ``COMMON_DECAY`` or more over
+    the shadow's window behind (:func:`near_field`); ``-inf`` elsewhere, and over a wall that most beams
+    see at one range (a round well seen from its centre: the median rises above what precedes it and
+    casts a shadow, as a wall does) and its echo's length."""
     common = np.percentile(smooth, COMMON_PERCENTILE, axis=0)
     profile = common[None, :]
-    guard, trail = _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m)
     every = np.arange(common.size)
-    decay = common - _trailing_median(profile, np.zeros_like(every), every, guard, trail)
+    decay = common - _trailing_median(profile, np.zeros_like(every), every, _bins(SHADOW_GUARD_M, bin_m),
+                                      _bins(SHADOW_TRAIL_M, bin_m))
     lead = _leading_noise(profile, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
     rising = np.flatnonzero((profile[0] > threshold) & (profile[0] - lead[0] >= SHADOW_LEAD_MARGIN) & far)
-    walls = rising[decay[rising] >= SHADOW_MARGIN]
-    out = np.where(decay >= COMMON_DECAY, common, -np.inf)
-    for start in walls:
+    out = np.where(near_field(decay, far), common, -np.inf)
+    for start in rising[decay[rising] >= SHADOW_MARGIN]:
         out[start:start + _bins(SHADOW_ECHO_M, bin_m) + 1] = -np.inf
     return out
+
+
+def near_field(decay: np.ndarray, far: np.ndarray) -> np.ndarray:
+    """Mask of the near field: the bins from ``far``'s first on while the common level falls off
+    (``decay`` >= ``COMMON_DECAY``). It ends where the level stops falling: floor reverberation in
+    shallow water, the water column, a wall every beam meets."""
+    mask = np.zeros(decay.shape, dtype=bool)
+    if not far.any():
+        return mask
+    start = int(np.argmax(far))
+    ends = np.flatnonzero(decay[start:] < COMMON_DECAY)
+    mask[start:start + int(ends[0]) if ends.size else decay.size] = True
+    return mask
 
 
 def _echo_peaks(detections: np.ndarray, smooth: np.ndarray, threshold: float, longest: int) -> np.ndarray:
