@@ -319,8 +319,8 @@ def test_shadow_drops_near_field_speckle_that_every_beam_holds(seed, monkeypatch
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_shadow_keeps_walls_inside_shallow_water_reverberation(seed, monkeypatch):
-    """The head 0.25 m above the floor in 1 m of water: reverberation holds one level over most of every
-    beam, so the common level is not tested there (only where it falls off, as the near field does)."""
+    """The head 0.25 m above the floor in 1 m of water: reverberation fills most of every beam beyond the
+    near field, where the common level is not tested."""
     sim = simulate_scan([np.array([[0, 0], [4.0, 0], [4.0, 3.0], [0, 3.0]])], TruePose("t", 1.4, 1.1, 0.3, 0.75),
                         SonarSpec(range_m=6.0, bins=150), EffectsSpec(floor_db=-16.0), np.random.default_rng(seed),
                         water_depth_m=1.0)
