@@ -112,7 +112,6 @@ SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
 SHADOW_SMOOTH_M = 3 * TUNED_BIN_M
 COMMON_MARGIN = 60.0
-COMMON_PERCENTILE = 50.0
 COMMON_DECAY = 10.0
 FULL_TURN_GAPS = 10
 METHODS = ("paper", "cfar", "shadow")
@@ -309,12 +308,12 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple
     if peak <= 0:
         return np.zeros(smooth.shape, dtype=bool), np.zeros_like(smooth)
     smooth *= PAPER_SCALE / peak
-    noise = _leading_noise(smooth, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
-    candidates = (smooth > threshold) & (smooth - noise >= SHADOW_LEAD_MARGIN) & far[None, :]
-    guard, trail = _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m)
+    windows = _shadow_windows(bin_m)
+    candidates = _rising(smooth, threshold, far, windows)
     if full_turn(scan.bearings_rad):
         candidates &= smooth - common_clutter(smooth, threshold, far, bin_m)[None, :] >= COMMON_MARGIN
     beams, bins = np.nonzero(candidates)
+    _, _, guard, trail = windows
     behind = _trailing_median(smooth, beams, bins, guard, trail)
     shadowed = smooth[beams, bins] - behind >= SHADOW_MARGIN
     detections = np.zeros_like(candidates)
@@ -336,19 +335,33 @@ def common_clutter(smooth: np.ndarray, threshold: float, far: np.ndarray, bin_m:
     """The level every beam holds at each range (the across-beam median of the smoothed image) over the
     near field: from ``far``'s first bin as long as that level falls off by ``COMMON_DECAY`` or more over
     the shadow's window behind (:func:`near_field`); ``-inf`` elsewhere, and over a wall that most beams
-    see at one range (a round well seen from its centre: the median rises above what precedes it and
-    casts a shadow, as a wall does) and its echo's length."""
-    common = np.percentile(smooth, COMMON_PERCENTILE, axis=0)
-    profile = common[None, :]
+    see at one range (a round well seen from its centre: the median passes the rule's own two tests, it
+    rises above what precedes it and casts a shadow) and its echo's length."""
+    common = np.median(smooth, axis=0)
+    windows = _shadow_windows(bin_m)
+    _, _, guard, trail = windows
     every = np.arange(common.size)
-    decay = common - _trailing_median(profile, np.zeros_like(every), every, _bins(SHADOW_GUARD_M, bin_m),
-                                      _bins(SHADOW_TRAIL_M, bin_m))
-    lead = _leading_noise(profile, _bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m))
-    rising = np.flatnonzero((profile[0] > threshold) & (profile[0] - lead[0] >= SHADOW_LEAD_MARGIN) & far)
+    decay = common - _trailing_median(common[None, :], np.zeros_like(every), every, guard, trail)
+    walls = np.flatnonzero(_rising(common[None, :], threshold, far, windows)[0] & (decay >= SHADOW_MARGIN))
     out = np.where(near_field(decay, far), common, -np.inf)
-    for start in rising[decay[rising] >= SHADOW_MARGIN]:
+    for start in walls:
         out[start:start + _bins(SHADOW_ECHO_M, bin_m) + 1] = -np.inf
     return out
+
+
+def _shadow_windows(bin_m: float) -> tuple[int, int, int, int]:
+    """The shadow rule's windows in bins of ``bin_m``: the leading training window and its guard, the
+    trailing guard and the trailing window."""
+    return (_bins(CFAR_TRAIN * TUNED_BIN_M, bin_m), _bins(CFAR_GUARD * TUNED_BIN_M, bin_m),
+            _bins(SHADOW_GUARD_M, bin_m), _bins(SHADOW_TRAIL_M, bin_m))
+
+
+def _rising(smooth: np.ndarray, threshold: float, far: np.ndarray, windows: tuple[int, int, int, int]) -> np.ndarray:
+    """Bins beyond the blanking (``far``) above ``threshold`` and ``SHADOW_LEAD_MARGIN`` above the mean of
+    the water in front of them (step 2)."""
+    train, lead_guard, _, _ = windows
+    noise = _leading_noise(smooth, train, lead_guard)
+    return (smooth > threshold) & (smooth - noise >= SHADOW_LEAD_MARGIN) & far[None, :]
 
 
 def near_field(decay: np.ndarray, far: np.ndarray) -> np.ndarray:
