@@ -122,18 +122,59 @@ class AlignmentQuality:
     violation_run_m: float = 0.0
     """The longest stretch of one scan's wall (metres along its consecutive wall points) lying in the
     other scan's free space, the larger of the two directions (:func:`longest_run_m`)."""
+    point_weight: float = 1.0
+    """How many points at :data:`CALIBRATION_STEP_DEG` each point stands for (:func:`point_weight`)."""
+    line_rms_m: float = math.inf
+    """RMS of the inliers' distances to the reference wall's line (along its normal). ``rms_m`` is to
+    the nearest reference *point*, and so also measures how far apart the reference's points lie (about
+    ``s / sqrt(12)`` for points ``s`` apart): a scan of coarser steps reads rougher though its walls fit
+    as well. The verification's statistics use this one."""
+
+    @property
+    def equivalent_inliers(self) -> float:
+        """The inliers counted as points at :data:`CALIBRATION_STEP_DEG`: what the inlier limits and
+        the calibrated verification were set on."""
+        return self.inliers * self.point_weight
 
     @property
     def weak_std_m(self) -> float:
         """Predicted standard deviation of the translation along its weakest direction:
-        ``rms / sqrt(lambda_min * inliers)`` (point-to-line Gauss-Newton, Censi 2007)."""
-        info = self.constraint * self.inliers
-        return self.rms_m / math.sqrt(info) if info > 0 else math.inf
+        ``rms / sqrt(lambda_min * inliers)`` (point-to-line Gauss-Newton, Censi 2007), with the
+        point-to-line RMS (:attr:`line_rms_m`) and the inliers counted at :data:`CALIBRATION_STEP_DEG`
+        (:attr:`equivalent_inliers`)."""
+        info = self.constraint * self.equivalent_inliers
+        return self.line_rms_m / math.sqrt(info) if info > 0 else math.inf
 
     @property
     def inlier_ratio(self) -> float:
         """Inliers among the moving points inside the reference sonar's range."""
         return self.inliers / self.candidates if self.candidates else 0.0
+
+
+CALIBRATION_STEP_DEG = 0.9
+"""The head's step between beams in the scans every count-based limit (``min_inliers``,
+``max_weak_std_m``) and the calibrated verification were set on: the physical simulator's default."""
+
+
+def point_weight(scan: RangeScan) -> float:
+    """How many points at :data:`CALIBRATION_STEP_DEG` one point of ``scan`` stands for: its step
+    between beams over that step, the step counted up to the beam's width.
+
+    A stretch of wall yields a point per beam, so the same wall gives half the points at 1.8° steps and
+    twice as many at 0.45°; the points of beams closer together than the beam is wide are not independent
+    (the cones overlap), so what a count measures is the angle of wall seen. Counted raw, a match at
+    1.8° steps falls under ``min_inliers`` and looks √2 less certain (:attr:`AlignmentQuality.weak_std_m`)
+    than the same match at 0.9°. Beams farther apart than the beam's width see disjoint stretches: each
+    such point stands for a beam width of wall, no more.
+    """
+    bearings = np.unique(np.mod(np.asarray(scan.bearings_rad, dtype=np.float64), 2 * np.pi))
+    if len(bearings) < 2:
+        return 1.0
+    step = float(np.median(np.diff(bearings)))
+    width = float(scan.beam_width_rad)
+    if width > 0:
+        step = min(step, width)
+    return step / math.radians(CALIBRATION_STEP_DEG) if step > 0 else 1.0
 
 
 @dataclass(frozen=True)
@@ -176,13 +217,15 @@ class ConvergenceParams(StageParams):
 
 def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
                      max_range_m: float, inlier_distance_m: float,
-                     visible: np.ndarray | None = None, moving_origin: np.ndarray | None = None) -> AlignmentQuality:
+                     visible: np.ndarray | None = None, moving_origin: np.ndarray | None = None,
+                     weight: float = 1.0) -> AlignmentQuality:
     """Measure the fit of already transformed moving points ``moved`` against the reference points.
 
     The inlier share is taken over the *candidates*: the moving points within the reference sonar's
     range and, when ``visible`` is given, that it could have seen (not behind one of its own walls).
     With the moving sonar's position in the reference frame (``moving_origin``), a moving point on a
     reference wall that the two sonars see from opposite sides (:func:`seen_from_behind`) is no inlier.
+    ``weight`` is the moving scan's :func:`point_weight`.
     """
     dist, idx = tree.query(moved, k=1)
     in_range = np.hypot(moved[:, 0], moved[:, 1]) <= max_range_m
@@ -198,12 +241,15 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
             inlier[back] = False
     n_in = int(inlier.sum())
     if n_in < 3:
-        return AlignmentQuality(n_in, int(in_range.sum()), len(moved), float("inf"), 0.0, behind=behind)
+        return AlignmentQuality(n_in, int(in_range.sum()), len(moved), float("inf"), 0.0, behind=behind,
+                                point_weight=weight)
     nrm = ref_normals[idx[inlier]]
     info = nrm.T @ nrm / n_in
     constraint = float(np.linalg.eigvalsh(info)[0])
     rms = float(np.sqrt(np.mean(dist[inlier] ** 2)))
-    return AlignmentQuality(n_in, int(in_range.sum()), len(moved), rms, constraint, behind=behind)
+    across = np.einsum("ij,ij->i", moved[inlier] - ref_points[idx[inlier]], nrm)
+    return AlignmentQuality(n_in, int(in_range.sum()), len(moved), rms, constraint, behind=behind, point_weight=weight,
+                            line_rms_m=float(np.sqrt(np.mean(across ** 2))))
 
 
 BEHIND_SHARE = 0.25
@@ -238,9 +284,11 @@ def hard_limits(quality: AlignmentQuality, limits: ConvergenceThresholds, *, rat
     """The reason a fit fails the inlier count, the inlier share (with ``ratio``), one of the two
     corridor tests (``min_constraint``, ``max_weak_std_m``) or the stretch of wall in the other scan's
     water (``max_violation_run_m``), or an empty string."""
-    if quality.inliers < limits.min_inliers:
+    if quality.equivalent_inliers < limits.min_inliers:
         behind = f"; {quality.behind} more on walls the two sonars see from opposite sides" if quality.behind else ""
-        return f"only {quality.inliers} inlier points (< {limits.min_inliers}{behind})"
+        counted = "" if quality.point_weight == 1.0 else \
+            f", {quality.equivalent_inliers:.0f} as points at {CALIBRATION_STEP_DEG}° steps"
+        return f"only {quality.inliers} inlier points{counted} (< {limits.min_inliers}{behind})"
     if ratio and quality.inlier_ratio < limits.min_inlier_ratio:
         return f"inlier ratio {quality.inlier_ratio:.2f} < {limits.min_inlier_ratio:.2f}"
     if quality.constraint < limits.min_constraint:
@@ -296,8 +344,8 @@ class FreeSpace:
             ranges = np.where(np.isfinite(ranges), ranges, open_range_m)
         step = 2 * np.pi / max(len(angles), 1)
         self.tolerance_rad = 1.5 * step
-        half_cone = 0.5 * float(scan.beam_width_rad) if cone else 0.0
-        self.ranges = _cone_minimum(self.angles, ranges, half_cone) if half_cone > 0 else ranges
+        reach = erosion_reach(self.angles, float(scan.beam_width_rad)) if cone else 0.0
+        self.ranges = _cone_minimum(self.angles, ranges, reach) if reach > 0 else ranges
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -374,6 +422,30 @@ class FreeSpace:
         return nearest, checked, r, r_echo
 
 
+def erosion_reach(angles: np.ndarray, beam_width_rad: float) -> float:
+    """How far from a beam (radians) the beams lie whose echoes bound its free range: half the beam
+    cone, and never so little that the beams next to it are left out.
+
+    A point is looked up at its nearest beam, so its bearing is known to a step only; with steps as
+    wide as half the cone or wider (1.8° steps under a 3° beam) the half cone would hold the beam
+    alone, although the cones of the beams on either side cover bearings the point may have. The
+    reach is then one and a half steps (as :attr:`FreeSpace.tolerance_rad`): the neighbours on either
+    side, not the beams beyond them.
+
+    Parameters
+    ----------
+    angles : ndarray
+        The beams' bearings, sorted.
+    beam_width_rad : float
+        The cone's full width.
+    """
+    half_cone = 0.5 * beam_width_rad
+    if len(angles) < 2 or half_cone <= 0:
+        return half_cone
+    step = float(np.median(np.diff(angles)))
+    return max(half_cone, 1.5 * step)
+
+
 def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:
     """For every beam (``angles`` sorted in [0, 2π)), the nearest finite echo among the beams within
     ``half_cone_rad`` of it (cyclically); ``nan`` where none of them has an echo."""
@@ -408,10 +480,13 @@ class ReferenceModel:
         self.tree = cKDTree(self.points) if len(self.points) else None
         self.normals = estimate_normals(self.points, self.tree) if len(self.points) >= 3 else np.zeros((0, 2))
         self.free = FreeSpace(reference)
+        self.weight = point_weight(reference)
 
-    def assess(self, moved: np.ndarray, inlier_distance_m: float) -> AlignmentQuality:
-        """Fit of transformed moving points (without the free-space check, see :meth:`assess_pair`)."""
-        return assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, inlier_distance_m)
+    def assess(self, moved: np.ndarray, inlier_distance_m: float, weight: float = 1.0) -> AlignmentQuality:
+        """Fit of transformed moving points (without the free-space check, see :meth:`assess_pair`);
+        ``weight`` is the moving scan's :func:`point_weight`."""
+        return assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, inlier_distance_m,
+                                weight=weight)
 
     def assess_pair(self, moving: RangeScan, pose: np.ndarray, limits: ConvergenceThresholds) -> AlignmentQuality:
         """Fit of the moving scan placed by ``pose``, checked both ways: when the reference-onto-moving
@@ -422,7 +497,7 @@ class ReferenceModel:
         moved = transform(src, pose)
         seen = self.free.visible(moved, limits.free_space_margin_m)
         q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
-                             seen, moving_origin=np.asarray(pose[:2], dtype=np.float64))
+                             seen, moving_origin=np.asarray(pose[:2], dtype=np.float64), weight=point_weight(moving))
         back = transform(self.points, inverse(pose))
         mov_free = FreeSpace(moving)
         mov_tree = cKDTree(src) if len(src) >= 3 else None
@@ -439,12 +514,14 @@ class ReferenceModel:
         if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
             rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
                                   mov_free.visible(back, limits.free_space_margin_m),
-                                  moving_origin=np.asarray(inverse(pose)[:2], dtype=np.float64))
+                                  moving_origin=np.asarray(inverse(pose)[:2], dtype=np.float64), weight=self.weight)
             if rq.inlier_ratio < q.inlier_ratio:
-                q = AlignmentQuality(min(q.inliers, rq.inliers), rq.candidates, q.n_points, q.rms_m,
-                                     min(q.constraint, rq.constraint), behind=max(q.behind, rq.behind))
+                fewer = min((q, rq), key=lambda x: x.equivalent_inliers)
+                q = AlignmentQuality(fewer.inliers, rq.candidates, q.n_points, q.rms_m, min(q.constraint, rq.constraint),
+                                     behind=max(q.behind, rq.behind), point_weight=fewer.point_weight,
+                                     line_rms_m=q.line_rms_m)
         return AlignmentQuality(q.inliers, q.candidates, q.n_points, q.rms_m, q.constraint, float(max(ratios)),
-                                float(min(ratios)), q.behind, run)
+                                float(min(ratios)), q.behind, run, q.point_weight, q.line_rms_m)
 
 
 def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float, viewer: np.ndarray | None = None) -> float:

@@ -266,8 +266,10 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
     polished_score = float(fine(polished[None, :])[0])
     if polished_score >= score - POLISH_TOLERANCE:
         pose, score = polished, polished_score
+    covariance = score_covariance(fine, pose)
+    covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, peaks[0][1])
     return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
-                    best_coarse=best_coarse, covariance=score_covariance(fine, pose))
+                    best_coarse=best_coarse, covariance=covariance)
 
 
 def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, float] = (1.0, 1.0)) -> str:
@@ -312,6 +314,45 @@ def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
     information = (vecs * np.maximum(vals, floor)) @ vecs.T * np.outer(scale, scale)
     cov = SCORE_TEMPERATURE * np.linalg.inv(information)
     return 0.5 * (cov + cov.T)
+
+
+OUTLYING_M = 0.25
+"""Coarse poses farther than this from the best are outside its peak (:func:`outlying_spread`): the
+curvature's quadratic reads ±0.1 m, and a peak's cells fall off within two cells."""
+
+
+def outlying_spread(scores: np.ndarray, offset: np.ndarray, shape_a: tuple[int, int], s: GroupFitSettings,
+                    best: np.ndarray) -> np.ndarray:
+    """The translation covariance (2 × 2) the search's other good places add to a fit's peak.
+
+    The curvature of the score (:func:`score_covariance`) describes the peak itself; the coarse search
+    may also score well elsewhere — a second peak under the ambiguity ratio, a ridge along a tunnel both
+    groups see end to end. Read as a likelihood (``exp(S / SCORE_TEMPERATURE)``, as the curvature is),
+    the whole search window gives the probability mass of each place; the mass farther than
+    :data:`OUTLYING_M` from the best, with its squared offsets, is what the peak's own covariance leaves
+    out (the correlative matcher's covariance of Olson, ICRA 2009, over the window, less the peak
+    already counted).
+
+    Parameters
+    ----------
+    scores : ndarray, shape (Y, H, W)
+        The coarse scores (:func:`coarse_scores`) with translation ``k * cell + offset``.
+    offset : ndarray, shape (2,)
+        ``lo_A - lo_B``.
+    shape_a : (int, int)
+        A's grid shape (the wrap of negative indices).
+    s : GroupFitSettings
+    best : ndarray, shape (3,)
+        The best coarse pose.
+    """
+    top = float(scores.max())
+    yaw, rows, cols = np.nonzero(scores > top - SCORE_TEMPERATURE * math.log(1e4))
+    h, w = scores.shape[1:]
+    k = np.column_stack([np.where(cols < shape_a[1], cols, cols - w), np.where(rows < shape_a[0], rows, rows - h)])
+    t = k * s.cell_m + offset - np.asarray(best[:2], dtype=np.float64)
+    weight = np.exp((scores[yaw, rows, cols] - top) / SCORE_TEMPERATURE)
+    far = np.hypot(t[:, 0], t[:, 1]) > OUTLYING_M
+    return (weight[far, None, None] * (t[far, :, None] * t[far, None, :])).sum(axis=0) / weight.sum()
 
 
 def about(cov: np.ndarray, pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:

@@ -171,7 +171,7 @@ on those seeds, and 2.2–2.4 % on the same sites drawn with 20 % multipath echo
 def laid_back_to_back(q: AlignmentQuality, limits: ConvergenceThresholds) -> bool:
     """Whether a pair of scans lays ``min_inliers`` or more wall points on walls the other sonar saw from
     the other side, more than it lays on walls seen from the same side (:meth:`WallCheck.conflict`)."""
-    return q.behind >= limits.min_inliers and q.behind > q.inliers
+    return q.behind * q.point_weight >= limits.min_inliers and q.behind > q.inliers
 
 
 class JoinPair(NamedTuple):
@@ -235,7 +235,7 @@ class WallCheck:
         pairs = self.assess_join(graph, i, j, z)
         runs = [(q.violation_run_m, a, b) for q, a, b, _ in pairs]
         backs = [(q.behind, q.inliers, a, b) for q, a, b, _ in pairs if laid_back_to_back(q, self.limits)]
-        sharing = [p for p in pairs if p.quality.inliers >= self.limits.min_inliers]
+        sharing = [p for p in pairs if p.quality.equivalent_inliers >= self.limits.min_inliers]
         shares = [(q.violation_ratio, a, b) for q, a, b, _ in sharing]
         run, a, b = max(runs, default=(0.0, -1, -1))
         if run > self.limits.max_violation_run_m:

@@ -48,18 +48,19 @@ def features(quality: AlignmentQuality, limits: ConvergenceThresholds) -> np.nda
     the larger and the smaller of the two free-space violation shares (a sonar blind to a wall inside its
     blanking range violates one way only; two scans of different places violate both ways), log10 of
     the predicted weakest-direction std over the inlier distance, inlier RMS over the inlier distance,
-    log10 of the inlier count and the constraint eigenvalue. Non-finite values are clipped to the range
+    log10 of the inlier count (:attr:`~cistern_plugins.alignment.AlignmentQuality.equivalent_inliers`) and the
+    constraint eigenvalue. Non-finite values are clipped to the range
     the model was fitted on."""
     d = limits.inlier_distance_m
     weak = quality.weak_std_m if math.isfinite(quality.weak_std_m) else 10.0 * d
-    rms = quality.rms_m if math.isfinite(quality.rms_m) else d
+    rms = quality.line_rms_m if math.isfinite(quality.line_rms_m) else d
     return np.array([
         quality.inlier_ratio,
         quality.violation_ratio,
         quality.violation_min,
         math.log10(min(max(weak / d, 1e-3), 10.0)),
         min(rms / d, 1.0),
-        math.log10(max(quality.inliers, 1)),
+        math.log10(max(quality.equivalent_inliers, 1)),
         min(quality.constraint, 0.5),
     ])
 
