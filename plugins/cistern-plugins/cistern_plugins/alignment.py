@@ -344,8 +344,13 @@ class FreeSpace:
             ranges = np.where(np.isfinite(ranges), ranges, open_range_m)
         step = 2 * np.pi / max(len(angles), 1)
         self.tolerance_rad = 1.5 * step
-        reach = erosion_reach(self.angles, float(scan.beam_width_rad)) if cone else 0.0
-        self.ranges = _cone_minimum(self.angles, ranges, reach) if reach > 0 else ranges
+        half_cone = 0.5 * float(scan.beam_width_rad) if cone else 0.0
+        if half_cone > 0:
+            reach = erosion_reach(self.angles, float(scan.beam_width_rad))
+            covered = _cone_minimum(self.angles, ranges, half_cone)  # a bearing some echo's cone saw
+            ranges = covered if reach <= half_cone else \
+                np.where(np.isfinite(covered), _cone_minimum(self.angles, ranges, reach), np.nan)
+        self.ranges = ranges
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -430,7 +435,9 @@ def erosion_reach(angles: np.ndarray, beam_width_rad: float) -> float:
     wide as half the cone or wider (1.8° steps under a 3° beam) the half cone would hold the beam
     alone, although the cones of the beams on either side cover bearings the point may have. The
     reach is then one and a half steps (as :attr:`FreeSpace.tolerance_rad`): the neighbours on either
-    side, not the beams beyond them.
+    side, not the beams beyond them. The reach only bounds free space: a beam that heard nothing,
+    with no echo within its own half cone, stays silent (its neighbours' cones do not cover its
+    bearing, so their water is not its water).
 
     Parameters
     ----------
