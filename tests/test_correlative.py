@@ -5,6 +5,7 @@ import math
 import numpy as np
 
 from cistern_archive.core.scan import RangeScan
+from cistern_archive.grid.polygon import polygon_scan
 from cistern_archive.testing import simulated_pair
 from cistern_plugins.registration import scan_points
 from cistern_plugins.correlative import CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound
@@ -76,9 +77,15 @@ def test_an_ambiguous_match_reports_its_rival_places_and_a_unique_one_none():
         assert abs(rival.dy_m - res.dy_m) < 0.2  # along the corridor, not across it
         assert abs(rival.dx_m - res.dx_m) > CorrelativeParams().ambiguity_distance_m
         assert rival.radius_m == CorrelativeParams().ambiguity_distance_m
-    pair = simulated_pair(rng, overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0), noise_m=0.02)
-    unique = CorrelativeMatcher().match(pair.reference, pair.moving, CorrelativeParams(), rng=rng)
+    # An L-shaped room seen from two stations 2 m apart: one place fits (a random room drawn here before
+    # sat at the ambiguity ratio's edge, its rival at 0.90 of the best once free space is bounded by the
+    # neighbouring beams at 1.8° steps).
+    room = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [3.5, 4.0], [3.5, 5.0], [0.0, 5.0]])
+    reference = polygon_scan([room], (1.5, 1.5), 0.0, rng=rng, n_beams=200, max_range_m=8.0, range_noise_m=0.02)
+    moving = polygon_scan([room], (3.2, 2.6), 0.0, rng=rng, n_beams=200, max_range_m=8.0, range_noise_m=0.02)
+    unique = CorrelativeMatcher().match(reference, moving, CorrelativeParams(), rng=rng)
     assert unique.converged and unique.alternatives == ()
+    assert math.hypot(unique.dx_m - 1.7, unique.dy_m - 1.1) < 0.05
 
 
 def test_a_reference_pyramid_is_built_once_and_changes_no_result():

@@ -46,3 +46,28 @@ def test_the_reach_is_the_half_cone_unless_the_steps_are_wider():
     assert erosion_reach(fine, math.radians(3.0)) == pytest.approx(math.radians(1.5))
     assert erosion_reach(coarse, math.radians(3.0)) == pytest.approx(math.radians(2.7))
     assert erosion_reach(coarse, 0.0) == 0.0
+
+
+ROOM = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [3.5, 4.0], [3.5, 5.0], [0.0, 5.0]])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_inliers_are_counted_as_points_at_the_calibration_step(seed):
+    """The same match at 1.8° steps has half the inlier points of one at 0.9°; counted as points at the
+    calibration's 0.9° it has as many, and the same predicted σ along its weakest direction (to the
+    precision of the two scans' noise)."""
+    from cistern_archive.grid.polygon import polygon_scan
+    from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel
+
+    rng = np.random.default_rng(seed)
+    qualities = {}
+    for beams in (400, 200):
+        a = polygon_scan([ROOM], (1.5, 1.5), 0.0, rng=rng, n_beams=beams, max_range_m=8.0, range_noise_m=0.02)
+        b = polygon_scan([ROOM], (4.0, 2.0), 0.0, rng=rng, n_beams=beams, max_range_m=8.0, range_noise_m=0.02)
+        qualities[beams] = ReferenceModel(a).assess_pair(b, np.array([2.5, 0.5, 0.0]), ConvergenceThresholds())
+    fine, coarse = qualities[400], qualities[200]
+    assert fine.point_weight == pytest.approx(1.0) and coarse.point_weight == pytest.approx(2.0)
+    assert coarse.inliers == pytest.approx(fine.inliers / 2, rel=0.1)
+    assert coarse.equivalent_inliers == pytest.approx(fine.equivalent_inliers, rel=0.1)
+    assert coarse.weak_std_m == pytest.approx(fine.weak_std_m, rel=0.2)
+    assert coarse.line_rms_m <= coarse.rms_m
