@@ -14,7 +14,7 @@ import numpy as np
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
 from cistern_archive.pipeline.status import (MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, chain_breaks,
-                                              label_indices, site_status, weakness)
+                                             label_indices, site_status, skipped_run_caveat, weakness)
 from service_helpers import CLI, make_catalog
 
 
@@ -24,7 +24,7 @@ def test_ok_only_when_every_scan_is_placed_and_every_dimension_measured():
     status, reasons = site_status(failed_stage=None, scans_placed=[True, False, True], labels=labels, unmeasured=[])
     assert status == "partial" and reasons == [
         "1 of 3 scans not placed (s2). The survey's chain breaks between s1 and s2: a station between them, "
-        "in sight of both, could join s2 to the map"]
+        "in sight of both, could join s2 to the map. " + skipped_run_caveat("s1", "s3", "s2")]
     status, reasons = site_status(failed_stage=None, scans_placed=[True] * 3, labels=labels,
                                   unmeasured=["width (truth): the map is empty"])
     assert status == "partial" and reasons == ["dimension not measured: width (truth): the map is empty"]
@@ -35,7 +35,20 @@ def test_each_break_of_the_survey_chain_is_named_at_the_placed_station_next_to_i
     hints = chain_breaks([False, True, True, False, False, True], labels)
     assert [h.split(":")[0] for h in hints] == ["The survey's chain breaks between a1 and a2",
                                                 "The survey's chain breaks between t1 and b1"]
-    assert hints[1].endswith("could join b1–b2 to the map")
+    assert "could join b1–b2 to the map" in hints[1]
+    assert "could join" in hints[0] and "joined without it" not in hints[0]  # nothing placed before a1
+
+
+def test_a_run_of_unplaced_stations_between_placed_ones_warns_that_its_two_sides_are_joined_unconfirmed():
+    """The first and the last chamber placed, the middle one not: what joined the two sides skipped the
+    stations that could have told a look-alike from the right place, and the reason says so."""
+    labels = ["a1", "o1", "b1", "b2", "t2", "c1"]
+    (hint,) = chain_breaks([True, True, False, False, True, True], labels)
+    assert hint.startswith("The survey's chain breaks between o1 and b1")
+    assert "o1 and t2, visited before and after b1–b2, are joined without it" in hint
+    assert "check the parts on either side against the mosaic" in hint
+    (end,) = chain_breaks([True, True, True, True, False, False], labels)
+    assert "joined without it" not in end
     assert chain_breaks([True] * 3, labels[:3]) == [] and chain_breaks([False] * 3, labels[:3]) == []
 
 
