@@ -154,22 +154,23 @@ def chain_breaks(scans_placed: Sequence[bool], labels: Sequence[str]) -> list[st
             hint = (f"The survey's chain breaks between {near} and {far}: a station between them, in sight "
                     f"of both, could join {span} to the map")
             if k > 0 and k + n < len(scans_placed):
-                hint += ". " + skipped_run_caveat(labels[k - 1], labels[k + n], span)
+                hint += ". " + skipped_run_caveat(labels[k - 1], labels[k + n], span, several=n > 1)
             hints.append(hint)
         k += n
     return hints
 
 
-def skipped_run_caveat(before: str, after: str, span: str) -> str:
+def skipped_run_caveat(before: str, after: str, span: str, *, several: bool = False) -> str:
     """The caveat of a run of unplaced stations with placed ones on both sides (:func:`chain_breaks`):
     the stations visited before and after it are on the map, so something other than the survey's chain
     joined them — a loop closure or a fit of groups as wholes, the joins a look-alike chamber can
     mislead, with the stations that could contradict them unplaced (``benchmarks/RESULTS.md``,
     "2026-12-04": on the report seed of the random cisterns, one such site had its first chamber laid
     8 m off onto the last)."""
-    return (f"{before} and {after}, visited before and after {span}, are joined without it, by a loop closure "
-            "or a fit of groups as wholes that the unplaced stations cannot confirm: where chambers look alike, "
-            "one part may stand in another's place, so check the parts on either side against the mosaic")
+    pronoun = "them" if several else "it"
+    return (f"{before} and {after}, visited before and after {span}, are joined without {pronoun}, by a loop "
+            "closure or a fit of groups as wholes that the unplaced stations cannot confirm: where chambers look "
+            "alike, one part may stand in another's place, so check the parts on either side against the mosaic")
 
 
 def imprecise_joins(joins: Sequence[tuple[str, str, float | None]]) -> list[str]:
