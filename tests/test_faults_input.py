@@ -126,7 +126,7 @@ truth:
   - {station: S1, x_m: 0.0, y_m: 0.0}
 base: &anchor {place: here}
 """
-PROBLEM = re.compile(r"^(?P<path>.+):(?P<line>\d+): \S.*", re.S)
+PROBLEM = re.compile(r"^(?P<path>.+?):(?P<line>\d+): \S.*", re.S)  # the first ":N: " ends the path: a field may hold ":1"
 
 
 def _assert_only_catalog_errors(tmp_path: Path, text: str) -> None:
@@ -157,6 +157,7 @@ YAML_PIECES = ["[", "]", "{", "}", ":", ": ", "- ", "\n", "\n  ", "&a ", "*a", "
 @given(cuts=st.lists(st.tuples(st.integers(0, len(VALID)), st.integers(0, 8), st.sampled_from(YAML_PIECES)),
                      min_size=1, max_size=6))
 @example(cuts=[(VALID.index("n_particles: 200") + 13, 3, "!!int ")])  # `n_particles: !!int }`
+@example(cuts=[(VALID.index("{station: S1") + 3, 8, ":")])  # a field named `st:1`, whose problem holds ":1: "
 def test_mutated_records_give_only_catalog_errors_with_file_and_line(tmp_path, cuts):
     text = VALID
     for at, delete, piece in cuts:
