@@ -196,3 +196,25 @@ def test_a_second_place_that_scores_nearly_as_well_widens_the_covariance_along_i
     weight = math.exp(-1.0) / (1.0 + math.exp(-0.5) + math.exp(-1.0))
     assert cov[0, 0] == pytest.approx(4.0 * weight)
     assert cov[1, 1] == pytest.approx(0.0) and cov[0, 1] == pytest.approx(0.0)
+
+
+def test_groups_the_survey_visited_apart_are_not_fitted_across_the_stations_between():
+    """The two chambers of the test above, with two stations visited between them that join neither (they
+    saw another room): the chambers are not fitted as wholes across the stations between (look-alike
+    chambers fit so where the vehicle never passed), the reason says so, and allowing the gap joins them."""
+    rng = np.random.default_rng(9)
+    elsewhere = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 5.0], [0.0, 5.0]]) + [40.0, 0.0]
+    scans = [_scan(p, rng, f"w{k + 1}") for k, p in enumerate(WEST)]
+    scans += [polygon_scan([elsewhere], (41.5, 1.5 + k), 0.0, rng=rng, n_beams=400, max_range_m=6.0) for k in range(2)]
+    scans += [_scan(p, rng, f"e{k + 1}") for k, p in enumerate(EAST)]
+    positions = WEST + [(41.5, 1.5), (41.5, 2.5)] + EAST
+    chamber = [0, 1, 2, 5, 6, 7]
+    matches = [_match(i, j, positions) for i in chamber for j in chamber if i != j and (i < 3) == (j < 3)]
+    apart = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert apart.placed.tolist() == [True] * 3 + [False] * 5
+    graph = consistent_edges(scans, matches, SiteGraphParams())
+    assert "visited 2 stations between them" in graph.unjoined[5]
+    allowed = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_max_gap=3))
+    assert allowed.placed.tolist() == [True] * 3 + [False] * 2 + [True] * 3
+    error = (allowed.xy_m[5:] - allowed.xy_m[0]) - (np.asarray(EAST) - WEST[0])
+    assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2

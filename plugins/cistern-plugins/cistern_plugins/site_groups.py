@@ -379,9 +379,24 @@ def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit) -> Edge:
     return Edge(i, j, pose_array(z), into_i @ cov @ into_i.T)
 
 
+def survey_gap(a: Sequence[int], b: Sequence[int]) -> int:
+    """How many places apart in the survey's order the nearest two stations of two groups were visited
+    (scans are indexed in that order): 1 when one was visited right after the other."""
+    return min(abs(i - j) for i in a for j in b)
+
+
+def far_apart_reason(gap: int, max_gap: int) -> str:
+    """Why two groups visited ``gap`` places apart are not fitted as wholes (:func:`join_by_fit`)."""
+    between = gap - 1
+    return (f"the survey visited {between} station{'s' if between != 1 else ''} between them that neither group "
+            "holds; without those a fit of the groups as wholes cannot tell the real join from a look-alike "
+            f"chamber (groups are fitted when the survey visited them at most {max_gap} places apart)")
+
+
 def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams) -> list[Edge]:
     """Join groups that no match could join by fitting them as wholes (:mod:`cistern_plugins.group_fit`):
-    each round, every pair of groups at one depth level is fitted and the clearest accepted fit that
+    each round, every pair of groups at one depth level that the survey visited at most ``group_max_gap``
+    places apart (:func:`survey_gap`) is fitted and the clearest accepted fit that
     passes the wall check merges its two groups; until no fit joins two groups. Returns the edges added
     (one per join); the reasons of the fits refused are kept in ``graph.unjoined`` for every scan
     outside the largest group."""
@@ -391,10 +406,15 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
         groups = sorted(set(graph.group))
         if len(groups) < 2:
             return added
-        candidates = []
+        candidates, far_apart = [], []
         for x, ga in enumerate(groups):
             for gb in groups[x + 1:]:
                 big, small = (ga, gb) if len(graph.members(ga)) >= len(graph.members(gb)) else (gb, ga)
+                gap = survey_gap(graph.members(big), graph.members(small))
+                if gap > p.group_max_gap:
+                    far_apart += [(k, f"not fitted as a group with {walls.label(graph.members(big)[0])}'s group: "
+                                      f"{far_apart_reason(gap, p.group_max_gap)}") for k in graph.members(small)]
+                    continue
                 probe = graph.members(small)[0]
                 a, b = level_members(graph, scans, big, scans[probe], p), level_members(graph, scans, small, scans[probe], p)
                 if not a or not b:
@@ -406,6 +426,8 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                         graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group: {why}")
                     continue
                 candidates.append((fit.score, a, b, fit))
+        for k, why in far_apart:  # said only of scans no fit gave a reason for
+            graph.unjoined.setdefault(k, why)
         for _, a, b, fit in sorted(candidates, key=lambda c: -c[0]):
             edge = group_edge(graph, a, b, fit)
             why = walls.conflict(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
