@@ -78,7 +78,7 @@ class GroupFitSettings:
     min_score: float = 30.0
     min_spread: float = 0.1
     min_refined_share: float = 0.2
-    ambiguity_ratio: float = 0.7
+    ambiguity_ratio: float = 0.8
     separation_m: float = 0.5
 
 

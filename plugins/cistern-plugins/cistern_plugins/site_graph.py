@@ -144,7 +144,7 @@ class SiteGraphParams(GraphParams):
                             "(step 2 of the module docstring, cistern_plugins.group_fit)")
     group_min_score: float = Field(30.0, ge=0, description="a group fit joins only with at least this score "
                                    "(cells of 0.1 m of agreeing wall, both ways)")
-    group_ambiguity_ratio: float = Field(0.7, gt=0, le=1, description="a group fit joins only when no place "
+    group_ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="a group fit joins only when no place "
                                          "0.5 m or more away scores more than this share of the best")
     group_free_penalty: float = Field(5.0, ge=0, description="what a wall point in the other group's water "
                                       "costs, against 1 for an agreeing one")
