@@ -214,6 +214,7 @@ def test_groups_the_survey_visited_apart_are_not_fitted_across_the_stations_betw
     assert apart.placed.tolist() == [True] * 3 + [False] * 5
     graph = consistent_edges(scans, matches, SiteGraphParams())
     assert "visited 2 stations between them" in graph.unjoined[5]
+    assert "only where the survey visited one right after the other" in graph.unjoined[5]
     allowed = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_max_gap=3))
     assert allowed.placed.tolist() == [True] * 3 + [False] * 2 + [True] * 3
     error = (allowed.xy_m[5:] - allowed.xy_m[0]) - (np.asarray(EAST) - WEST[0])

@@ -69,10 +69,10 @@ builds a graph over the whole site instead, in three steps.
    saw (open beams count as water); it joins two groups when its score reaches ``group_min_score``, no
    place 0.5 m away scores more than ``group_ambiguity_ratio`` of it, neither group is a tunnel seen
    from inside (two parallel walls fit every passage of their width), and the join passes the wall
-   check. Only groups the survey visited near each other are fitted: two of their stations at most
-   ``group_max_gap`` places apart in the survey's order. Across two or more stations that neither group
-   holds, the fit cannot tell the real join from a look-alike chamber: on 200 tuning sites all three
-   such joins laid a chamber 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest such fit joins first, until none is left. Its edge carries the covariance of the
+   check. Only groups the survey visited one after the other are fitted: two of their stations at most
+   ``group_max_gap`` places apart in the survey's order. Across stations that neither group holds, the
+   fit cannot tell the real join from a look-alike chamber: on the tuning sites such joins laid
+   chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest such fit joins first, until none is left. Its edge carries the covariance of the
    fit's score, wide along a tunnel that both groups see end to end. Every edge left over is checked
    against the merged geometry as before.
 
@@ -150,9 +150,9 @@ class SiteGraphParams(GraphParams):
                                       "costs, against 1 for an agreeing one")
     group_yaw_window_deg: float = Field(6.0, ge=0, le=45, description="heading window of a group fit "
                                         "(three times a Micron-class compass's 2° noise)")
-    group_max_gap: int = Field(2, ge=1, description="a group fit joins only groups with two stations at most "
-                               "this many places apart in the survey's order (2: one station visited between "
-                               "them at most; step 2 of the module docstring)")
+    group_max_gap: int = Field(1, ge=1, description="a group fit joins only groups with two stations at most "
+                               "this many places apart in the survey's order (1: one visited right after the "
+                               "other; step 2 of the module docstring)")
 
     def group_settings(self) -> GroupFitSettings:
         """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""

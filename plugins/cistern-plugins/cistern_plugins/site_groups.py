@@ -390,7 +390,14 @@ def far_apart_reason(gap: int, max_gap: int) -> str:
     between = gap - 1
     return (f"the survey visited {between} station{'s' if between != 1 else ''} between them that neither group "
             "holds; without those a fit of the groups as wholes cannot tell the real join from a look-alike "
-            f"chamber (groups are fitted when the survey visited them at most {max_gap} places apart)")
+            f"chamber (groups are fitted only where {apart_allowed(max_gap)})")
+
+
+def apart_allowed(max_gap: int) -> str:
+    """How far apart in the survey groups may be and still be fitted, in words."""
+    if max_gap == 1:
+        return "the survey visited one right after the other"
+    return f"the survey visited them at most {max_gap} places apart"
 
 
 def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams) -> list[Edge]:
