@@ -69,12 +69,12 @@ builds a graph over the whole site instead, in three steps.
    saw (open beams count as water); it joins two groups when its score reaches ``group_min_score``, no
    place 0.5 m away scores more than ``group_ambiguity_ratio`` of it, neither group is a tunnel seen
    from inside (two parallel walls fit every passage of their width), and the join passes the wall
-   check. Only groups the survey visited one after the other are fitted: two of their stations at most
-   ``group_max_gap`` places apart in the survey's order. Across stations that neither group holds, the
-   fit cannot tell the real join from a look-alike chamber: on the tuning sites such joins laid
-   chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest such fit joins first, until none is left. Its edge carries the covariance of the
-   fit's score, wide along a tunnel that both groups see end to end. Every edge left over is checked
-   against the merged geometry as before.
+   check. Only groups the survey visited one after the other are fitted (two of their stations at most
+   ``group_max_gap`` places apart in the survey's order): across stations that neither group holds, a
+   fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
+   chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest accepted fit joins first, until
+   none is left. Its edge carries the covariance of the fit's score, wide along a tunnel that both
+   groups see end to end. Every edge left over is checked against the merged geometry as before.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
