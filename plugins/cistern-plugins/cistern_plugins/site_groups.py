@@ -388,16 +388,11 @@ def survey_gap(a: Sequence[int], b: Sequence[int]) -> int:
 def far_apart_reason(gap: int, max_gap: int) -> str:
     """Why two groups visited ``gap`` places apart are not fitted as wholes (:func:`join_by_fit`)."""
     between = gap - 1
+    allowed = ("the survey visited one right after the other" if max_gap == 1
+               else f"the survey visited them at most {max_gap} places apart")
     return (f"the survey visited {between} station{'s' if between != 1 else ''} between them that neither group "
             "holds; without those a fit of the groups as wholes cannot tell the real join from a look-alike "
-            f"chamber (groups are fitted only where {apart_allowed(max_gap)})")
-
-
-def apart_allowed(max_gap: int) -> str:
-    """How far apart in the survey groups may be and still be fitted, in words."""
-    if max_gap == 1:
-        return "the survey visited one right after the other"
-    return f"the survey visited them at most {max_gap} places apart"
+            f"chamber (groups are fitted only where {allowed})")
 
 
 def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams) -> list[Edge]:
@@ -419,8 +414,9 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                 big, small = (ga, gb) if len(graph.members(ga)) >= len(graph.members(gb)) else (gb, ga)
                 gap = survey_gap(graph.members(big), graph.members(small))
                 if gap > p.group_max_gap:
-                    far_apart += [(k, f"not fitted as a group with {walls.label(graph.members(big)[0])}'s group: "
-                                      f"{far_apart_reason(gap, p.group_max_gap)}") for k in graph.members(small)]
+                    why = (f"not fitted as a group with {walls.label(graph.members(big)[0])}'s group: "
+                           f"{far_apart_reason(gap, p.group_max_gap)}")
+                    far_apart += [(k, why) for k in graph.members(small)]
                     continue
                 probe = graph.members(small)[0]
                 a, b = level_members(graph, scans, big, scans[probe], p), level_members(graph, scans, small, scans[probe], p)
