@@ -6,8 +6,8 @@ position and ``c_k`` the correction added to the compass yaw. A converged match 
 is ``R(c_i) d_ij``, which is exactly GTSAM's ``BetweenFactorPose2`` measurement ``X_i^-1 X_j = (d_ij,
 dyaw)``. Each factor's noise is the match's covariance (floored at ``min_sigma_xy_m``, or default sigmas
 when the matcher gives none), optionally wrapped in a robust M-estimator. Every correction ``c_k`` has a
-prior of ``compass_sigma_deg`` (the compass is trusted up to that), and the reference scan is anchored
-at the origin. Levenberg–Marquardt solves the graph; ``gtsam.Marginals`` gives each scan's covariance.
+prior of ``compass_sigma_deg`` about the compasses' common frame, itself a variable
+(:func:`add_compass_factors`), and the reference scan is anchored at the origin. Levenberg–Marquardt solves the graph; ``gtsam.Marginals`` gives each scan's covariance.
 """
 
 from __future__ import annotations
@@ -116,11 +116,9 @@ def solve(n: int, edges: Sequence[Edge], reference: int, noise: GraphNoise,
     values = gtsam.Values()
     anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-6]))
     graph.add(gtsam.PriorFactorPose2(reference, gtsam.Pose2(0, 0, 0), anchor))
-    compass = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e4, 1e4, math.radians(noise.compass_sigma_deg)]))
+    add_compass_factors(graph, values, sorted(initial), noise)
     for k, pose in sorted(initial.items()):
         values.insert(k, pose)
-        if k != reference:
-            graph.add(gtsam.PriorFactorPose2(k, gtsam.Pose2(0, 0, 0), compass))
     for e in edges:
         if e.i in initial and e.j in initial:
             graph.add(gtsam.BetweenFactorPose2(e.i, e.j, gtsam.Pose2(*e.z), _noise_model(e, noise)))
@@ -128,6 +126,31 @@ def solve(n: int, edges: Sequence[Edge], reference: int, noise: GraphNoise,
     lm.setMaxIterations(noise.max_iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, lm).optimize()
     return graph, result, initial
+
+
+COMPASS_FRAME = gtsam.symbol("c", 0)
+"""Key of the compass frame's turn against the map frame (:func:`add_compass_factors`)."""
+
+
+def add_compass_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: Sequence[int],
+                        noise: GraphNoise) -> None:
+    """The compass as a prior on every scan's heading correction ``c_k``, against one common frame.
+
+    Every compass reading has ``compass_sigma_deg`` of noise about the true heading plus a bias the
+    scans share; the map frame is the reference scan's compass frame, so the reference's own error is
+    in every other scan's correction. A prior ``c_k ~ N(0, sigma)`` would treat that one reading as
+    exact and pull a loosely joined part of the site (a group joined along a tunnel) round towards it.
+    Instead one more variable ``F`` (:data:`COMPASS_FRAME`) is the turn of the compasses' common frame
+    against the map, and each scan, the reference included, has ``c_k - F ~ N(0, sigma)``: a
+    ``BetweenFactorPose2(F, X_k)`` whose position part is free (10 km).
+    """
+    sigma = math.radians(noise.compass_sigma_deg)
+    compass = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e4, 1e4, sigma]))
+    values.insert(COMPASS_FRAME, gtsam.Pose2(0.0, 0.0, 0.0))
+    graph.add(gtsam.PriorFactorPose2(COMPASS_FRAME, gtsam.Pose2(0.0, 0.0, 0.0),
+                                     gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, math.pi]))))
+    for k in keys:
+        graph.add(gtsam.BetweenFactorPose2(COMPASS_FRAME, k, gtsam.Pose2(0.0, 0.0, 0.0), compass))
 
 
 def chi2(e: Edge, values: gtsam.Values) -> float:

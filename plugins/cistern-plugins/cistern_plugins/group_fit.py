@@ -34,11 +34,13 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
-farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, and neither group is a
-tunnel seen from inside (two parallel walls fit every passage of their width,
-:func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check
-(no stretch of wall across water, walls not in the water of the other scans) before it merges the
-groups.
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it (at most
+``tunnel_ambiguity_ratio`` when a group is a tunnel seen from inside: two parallel walls fit every
+passage of their width nearly as well as their own, :func:`~cistern_plugins.group_clouds.wall_spread`)
+and at least ``min_margin`` cells less — a ratio alone passes a weak fit whose rival is as weak, and
+the difference of two scores is a log-likelihood ratio (``SCORE_TEMPERATURE`` cells per unit).
+site-graph then puts the join to its own wall check (no stretch of wall across water, walls not in
+the water of the other scans) before it merges the groups.
 """
 
 from __future__ import annotations
@@ -79,6 +81,8 @@ class GroupFitSettings:
     min_spread: float = 0.1
     min_refined_share: float = 0.2
     ambiguity_ratio: float = 0.8
+    tunnel_ambiguity_ratio: float = 0.5
+    min_margin: float = 15.0
     separation_m: float = 0.5
 
 
@@ -276,19 +280,27 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not.
 
     ``spreads`` are the two groups' :func:`wall_spread`: a group whose walls all run one way (a station
-    inside a tunnel sees two parallel walls and little else) fits every passage of that width as well
-    as its own, so it joins through its matches only."""
+    inside a tunnel sees two parallel walls and little else) fits every passage of that width nearly as
+    well as its own: it joins only when no place elsewhere scores more than ``tunnel_ambiguity_ratio``
+    of the best (stricter than ``ambiguity_ratio``), and never to a group whose walls run one way too.
+    site-graph fits such a group to the other group's views from outside passages only
+    (:func:`cistern_plugins.site_groups.views_from_outside`)."""
+    one_way = (f"a group's walls all run one way (a tunnel seen from inside: spread {min(spreads):.2f} < "
+               f"{s.min_spread:.2f})")
+    if max(spreads) < s.min_spread:
+        return f"both groups' walls run one way (tunnels seen from inside: spreads {spreads[0]:.2f}, {spreads[1]:.2f})"
     if fit is None:
-        return "no walls to match"
-    if min(spreads) < s.min_spread:
-        return (f"a group's walls all run one way (a tunnel seen from inside: spread {min(spreads):.2f} < "
-                f"{s.min_spread:.2f}), which fits every passage of its width")
+        return f"{one_way} and the other saw no wall from outside a passage" if min(spreads) < s.min_spread \
+            else "no walls to match"
+    if min(spreads) < s.min_spread and fit.rival > s.tunnel_ambiguity_ratio * fit.best_coarse:
+        return (f"{one_way}, and a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
+                f"the best {fit.best_coarse:.0f}: it fits another passage of its width")
     if fit.best_coarse < s.min_score:
         return f"the two groups share too little wall: best score {fit.best_coarse:.0f} < {s.min_score:.0f}"
     if fit.score < s.min_refined_share * fit.best_coarse:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search")
-    if fit.rival > s.ambiguity_ratio * fit.best_coarse:
+    if fit.rival > s.ambiguity_ratio * fit.best_coarse or fit.best_coarse - fit.rival < s.min_margin:
         return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
                 f"the best {fit.best_coarse:.0f}")
     return ""
@@ -311,9 +323,42 @@ def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
     scaled = hessian / np.outer(scale, scale)
     vals, vecs = np.linalg.eigh(0.5 * (scaled + scaled.T))
     floor = SCORE_TEMPERATURE / MAX_SIGMA**2
-    information = (vecs * np.maximum(vals, floor)) @ vecs.T * np.outer(scale, scale)
+    vals = np.maximum(vals, floor)
+    for k in range(3):
+        along = vecs[:2, k]
+        if np.hypot(*along) > 0.9 and SCORE_TEMPERATURE / vals[k] > PROFILE_FROM_M**2:
+            sigma = profile_sigma(score, pose, along / np.hypot(*along))
+            vals[k] = max(vals[k], SCORE_TEMPERATURE / sigma**2)
+    information = (vecs * vals) @ vecs.T * np.outer(scale, scale)
     cov = SCORE_TEMPERATURE * np.linalg.inv(information)
     return 0.5 * (cov + cov.T)
+
+
+PROFILE_FROM_M = 0.2
+"""A direction whose curvature leaves a sigma above this is read from the score's profile instead
+(:func:`profile_sigma`)."""
+PROFILE_STEPS_M = (0.2, 0.4, 0.8, 1.6, 3.2)
+
+
+def profile_sigma(score: FineScore, pose: np.ndarray, direction: np.ndarray) -> float:
+    """The sigma (m) of a fit along a direction its peak's curvature cannot resolve, from the score's
+    profile along it.
+
+    A tunnel seen from inside is flat over ±0.1 m along its axis, but its mouths and the chambers beyond
+    make the score fall farther out. Stepping out both ways by :data:`PROFILE_STEPS_M`, the first step
+    ``d`` at which the smaller of the two drops reaches half a unit of log-likelihood gives the sigma of
+    a Gaussian falling so (``d * sqrt(T / (2 dS))``), but never less than the flat stretch before it
+    (uniform over ``±d_prev``: ``d_prev / sqrt(3)``); :data:`MAX_SIGMA` when the score never falls.
+    """
+    top = float(score(pose[None, :], prior=False)[0])
+    flat = 0.0
+    for d in PROFILE_STEPS_M:
+        probes = np.array([[*(pose[:2] + sign * d * direction), pose[2]] for sign in (1.0, -1.0)])
+        drop = top - float(score(probes, prior=False).max())
+        if drop >= 0.5 * SCORE_TEMPERATURE:
+            return min(MAX_SIGMA, max(d * math.sqrt(SCORE_TEMPERATURE / (2.0 * drop)), flat / math.sqrt(3.0)))
+        flat = d
+    return MAX_SIGMA
 
 
 OUTLYING_M = 0.25
