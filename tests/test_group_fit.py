@@ -15,7 +15,7 @@ from cistern_archive.pipeline.contracts import MatchResult
 from cistern_plugins.alignment import scan_points
 from cistern_plugins.group_clouds import TRACE_GAP_M, Cloud, wall_spread, wall_trace
 from cistern_plugins.group_fit import (MAX_SIGMA, SCORE_TEMPERATURE, GroupFit, GroupFitSettings, accept, fit_groups,
-                                      outlying_spread, score_covariance)
+                                      outlying_spread, profile_sigma, score_covariance)
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
 from cistern_plugins.site_groups import group_fit, views_from_outside
 
@@ -272,3 +272,24 @@ def test_a_weak_fit_needs_a_clear_margin_over_its_rival_not_only_a_ratio():
     assert accept(strong, settings) == ""
     assert accept(weak, settings).startswith("ambiguous")
     assert accept(weak, GroupFitSettings(min_margin=10.0)) == ""
+
+
+class _Profile:
+    """A score that depends on x only, called as :class:`FineScore` is."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def __call__(self, poses, *, prior=True):
+        return np.array([self.fn(p[0]) for p in np.atleast_2d(poses)])
+
+
+def test_a_direction_the_peak_cannot_resolve_is_read_from_the_score_profile():
+    """A Gaussian fall gives back its sigma; a flat stretch then a fall gives no less than the stretch
+    (uniform over it); a score that never falls keeps the widest sigma."""
+    pose, along = np.zeros(3), np.array([1.0, 0.0])
+    gaussian = _Profile(lambda x: 100.0 - SCORE_TEMPERATURE * x * x / (2 * 0.1**2))
+    assert profile_sigma(gaussian, pose, along) == pytest.approx(0.1, rel=1e-6)
+    plateau = _Profile(lambda x: 100.0 - 50.0 * max(0.0, abs(x) - 0.5) ** 2)
+    assert profile_sigma(plateau, pose, along) == pytest.approx(0.8 * math.sqrt(SCORE_TEMPERATURE / (2 * 4.5)))
+    assert profile_sigma(_Profile(lambda x: 100.0), pose, along) == MAX_SIGMA
