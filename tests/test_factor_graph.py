@@ -10,7 +10,8 @@ from cistern_plugins.factor_graph import COMPASS_FRAME, Edge, GraphNoise, solve
 
 
 def _edge(i, j, dx, dy, dyaw_deg, sigma_m, sigma_deg):
-    return Edge(i, j, np.array([dx, dy, math.radians(dyaw_deg)]), np.diag([sigma_m**2, sigma_m**2, math.radians(sigma_deg) ** 2]))
+    covariance = np.diag([sigma_m**2, sigma_m**2, math.radians(sigma_deg) ** 2])
+    return Edge(i, j, np.array([dx, dy, math.radians(dyaw_deg)]), covariance)
 
 
 def test_the_reference_compass_is_one_noisy_reading_among_the_others():

@@ -7,7 +7,8 @@ is ``R(c_i) d_ij``, which is exactly GTSAM's ``BetweenFactorPose2`` measurement 
 dyaw)``. Each factor's noise is the match's covariance (floored at ``min_sigma_xy_m``, or default sigmas
 when the matcher gives none), optionally wrapped in a robust M-estimator. Every correction ``c_k`` has a
 prior of ``compass_sigma_deg`` about the compasses' common frame, itself a variable
-(:func:`add_compass_factors`), and the reference scan is anchored at the origin. Levenberg–Marquardt solves the graph; ``gtsam.Marginals`` gives each scan's covariance.
+(:func:`add_compass_factors`), and the reference scan is anchored at the origin. Levenberg–Marquardt
+solves the graph; ``gtsam.Marginals`` gives each scan's covariance.
 """
 
 from __future__ import annotations

@@ -288,7 +288,8 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     one_way = (f"a group's walls all run one way (a tunnel seen from inside: spread {min(spreads):.2f} < "
                f"{s.min_spread:.2f})")
     if max(spreads) < s.min_spread:
-        return f"both groups' walls run one way (tunnels seen from inside: spreads {spreads[0]:.2f}, {spreads[1]:.2f})"
+        return (f"both groups' walls run one way (tunnels seen from inside: spreads {spreads[0]:.2f}, "
+                f"{spreads[1]:.2f})")
     if fit is None:
         return f"{one_way} and the other saw no wall from outside a passage" if min(spreads) < s.min_spread \
             else "no walls to match"

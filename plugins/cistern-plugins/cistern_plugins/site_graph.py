@@ -71,7 +71,8 @@ builds a graph over the whole site instead, in three steps.
    ``group_min_margin`` of it, and the join passes the wall check. A group whose walls all run one way
    (a tunnel seen from inside: two parallel walls fit every passage of their width) is fitted to the
    other group's views from outside passages only — that group's own stations inside a look-alike
-   passage would vouch for it — and joins only under ``group_tunnel_ambiguity_ratio``. Only groups the survey visited one after the other are fitted (two of their stations at most
+   passage would vouch for it — and joins only under ``group_tunnel_ambiguity_ratio``. Only groups
+   the survey visited one after the other are fitted (two of their stations at most
    ``group_max_gap`` places apart in the survey's order): across stations that neither group holds, a
    fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
    chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest accepted fit joins first, until
