@@ -34,12 +34,11 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
-farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it (at most
-``tunnel_ambiguity_ratio`` when a group is a tunnel seen from inside: two parallel walls fit every
-passage of their width nearly as well as their own, :func:`~cistern_plugins.group_clouds.wall_spread`)
-and at least ``min_margin`` cells less — a ratio alone passes a weak fit whose rival is as weak, and
-the difference of two scores is a log-likelihood ratio (``SCORE_TEMPERATURE`` cells per unit).
-site-graph then puts the join to its own wall check (no stretch of wall across water, walls not in
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it and at least
+``min_margin`` cells less (a ratio alone passes a weak fit whose rival is as weak; the difference of
+two scores is a log-likelihood ratio, ``SCORE_TEMPERATURE`` cells per unit), and neither group is a
+tunnel seen from inside (two parallel walls fit every passage of their width,
+:func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no stretch of wall across water, walls not in
 the water of the other scans) before it merges the groups.
 """
 
@@ -81,7 +80,6 @@ class GroupFitSettings:
     min_spread: float = 0.1
     min_refined_share: float = 0.2
     ambiguity_ratio: float = 0.8
-    tunnel_ambiguity_ratio: float = 0.5
     min_margin: float = 15.0
     separation_m: float = 0.5
 
@@ -280,22 +278,13 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not.
 
     ``spreads`` are the two groups' :func:`wall_spread`: a group whose walls all run one way (a station
-    inside a tunnel sees two parallel walls and little else) fits every passage of that width nearly as
-    well as its own: it joins only when no place elsewhere scores more than ``tunnel_ambiguity_ratio``
-    of the best (stricter than ``ambiguity_ratio``), and never to a group whose walls run one way too.
-    site-graph fits such a group to the other group's views from outside passages only
-    (:func:`cistern_plugins.site_groups.views_from_outside`)."""
-    one_way = (f"a group's walls all run one way (a tunnel seen from inside: spread {min(spreads):.2f} < "
-               f"{s.min_spread:.2f})")
-    if max(spreads) < s.min_spread:
-        return (f"both groups' walls run one way (tunnels seen from inside: spreads {spreads[0]:.2f}, "
-                f"{spreads[1]:.2f})")
+    inside a tunnel sees two parallel walls and little else) fits every passage of that width as well
+    as its own, so it joins through its matches only."""
     if fit is None:
-        return f"{one_way} and the other saw no wall from outside a passage" if min(spreads) < s.min_spread \
-            else "no walls to match"
-    if min(spreads) < s.min_spread and fit.rival > s.tunnel_ambiguity_ratio * fit.best_coarse:
-        return (f"{one_way}, and a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
-                f"the best {fit.best_coarse:.0f}: it fits another passage of its width")
+        return "no walls to match"
+    if min(spreads) < s.min_spread:
+        return (f"a group's walls all run one way (a tunnel seen from inside: spread {min(spreads):.2f} < "
+                f"{s.min_spread:.2f}), which fits every passage of its width")
     if fit.best_coarse < s.min_score:
         return f"the two groups share too little wall: best score {fit.best_coarse:.0f} < {s.min_score:.0f}"
     if fit.score < s.min_refined_share * fit.best_coarse:

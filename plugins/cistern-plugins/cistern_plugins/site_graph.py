@@ -68,10 +68,8 @@ builds a graph over the whole site instead, in three steps.
    other's frame that lays walls on walls seen from the same side, and no wall in water either group
    saw (open beams count as water); it joins two groups when its score reaches ``group_min_score``, no
    place 0.5 m away scores more than ``group_ambiguity_ratio`` of it or comes within
-   ``group_min_margin`` of it, and the join passes the wall check. A group whose walls all run one way
-   (a tunnel seen from inside: two parallel walls fit every passage of their width) is fitted to the
-   other group's views from outside passages only — that group's own stations inside a look-alike
-   passage would vouch for it — and joins only under ``group_tunnel_ambiguity_ratio``. Only groups
+   ``group_min_margin`` of it, neither group is a tunnel seen from inside (two parallel walls fit every
+   passage of their width), and the join passes the wall check. Only groups
    the survey visited one after the other are fitted (two of their stations at most
    ``group_max_gap`` places apart in the survey's order): across stations that neither group holds, a
    fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
@@ -149,8 +147,6 @@ class SiteGraphParams(GraphParams):
                                    "(cells of 0.1 m of agreeing wall, both ways)")
     group_ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="a group fit joins only when no place "
                                          "0.5 m or more away scores more than this share of the best")
-    group_tunnel_ambiguity_ratio: float = Field(0.5, gt=0, le=1, description="the same, where a group's "
-                                                "walls all run one way (a tunnel seen from inside)")
     group_min_margin: float = Field(15.0, ge=0, description="a group fit joins only when the best place "
                                     "outscores every place 0.5 m or more away by this many cells (a log-likelihood "
                                     "ratio of 15 / 4, odds of about 40 to 1)")
@@ -165,7 +161,6 @@ class SiteGraphParams(GraphParams):
     def group_settings(self) -> GroupFitSettings:
         """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""
         return GroupFitSettings(min_score=self.group_min_score, ambiguity_ratio=self.group_ambiguity_ratio,
-                                tunnel_ambiguity_ratio=self.group_tunnel_ambiguity_ratio,
                                 min_margin=self.group_min_margin,
                                 free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg,
                                 compass_sigma_deg=self.compass_sigma_deg)

@@ -353,41 +353,16 @@ def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[in
               digest: str) -> tuple[GroupFit | None, tuple[float, float]]:
     """The fit of the scans ``b`` (one group) in the frame of the scans ``a`` (another) and the two
     groups' :func:`~cistern_plugins.group_clouds.wall_spread`, cached: the clouds are built only when
-    the pair was not fitted before.
-
-    When one group's walls all run one way (a tunnel seen from inside), it is fitted to the other
-    group's views from outside passages only (:func:`views_from_outside`): that group's own stations
-    inside a passage fit a look-alike passage as well as the right one and would vouch for either."""
-    poses = {k: pose_array(graph.pose[k]) for k in (*a, *b)}
-
-    def cloud(members: Sequence[int]) -> Cloud:
-        return Cloud([scans[k] for k in members], [poses[k] for k in members])
+    the pair was not fitted before."""
+    poses_a, poses_b = [pose_array(graph.pose[k]) for k in a], [pose_array(graph.pose[k]) for k in b]
 
     def compute() -> tuple[GroupFit | None, tuple[float, float]]:
-        cloud_a: Cloud | None = cloud(a)
-        cloud_b: Cloud | None = cloud(b)
-        spreads = (wall_spread(cloud_a), wall_spread(cloud_b))
-        limit = p.group_settings().min_spread
-        if spreads[1] < limit <= spreads[0]:
-            outside = views_from_outside(scans, a, poses, limit)
-            cloud_a = cloud(outside) if outside else None
-        elif spreads[0] < limit <= spreads[1]:
-            outside = views_from_outside(scans, b, poses, limit)
-            cloud_b = cloud(outside) if outside else None
-        if cloud_a is None or cloud_b is None:
-            return None, spreads
-        return fit_groups(cloud_a, cloud_b, p.group_settings()), spreads
+        cloud_a = Cloud([scans[k] for k in a], poses_a)
+        cloud_b = Cloud([scans[k] for k in b], poses_b)
+        return fit_groups(cloud_a, cloud_b, p.group_settings()), (wall_spread(cloud_a), wall_spread(cloud_b))
 
-    key = (digest, tuple(a), pose_key([poses[k] for k in a]), tuple(b), pose_key([poses[k] for k in b]),
-           p.group_settings())
+    key = (digest, tuple(a), pose_key(poses_a), tuple(b), pose_key(poses_b), p.group_settings())
     return FITS.get(key, compute)
-
-
-def views_from_outside(scans: Sequence[RangeScan], members: Sequence[int], poses: dict[int, np.ndarray],
-                       min_spread: float) -> list[int]:
-    """The members of a group whose own walls face more than one way (``wall_spread`` at least
-    ``min_spread``): the stations that saw the site from outside its passages."""
-    return [k for k in members if wall_spread(Cloud([scans[k]], [poses[k]])) >= min_spread]
 
 
 def group_edge(graph: Graph, a: list[int], b: list[int], fit: GroupFit) -> Edge:
