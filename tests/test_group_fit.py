@@ -221,18 +221,6 @@ def test_groups_the_survey_visited_apart_are_not_fitted_across_the_stations_betw
     assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2
 
 
-def test_a_weak_fit_needs_a_clear_margin_over_its_rival_not_only_a_ratio():
-    """Two fits whose rivals score the same share of the best: the strong one joins; the weak one, whose
-    best outscores the rival by less than ``min_margin`` cells (odds under about 40 to 1), does not."""
-    settings = GroupFitSettings()
-    strong = GroupFit(pose=np.zeros(3), score=60.0, rival=50.0, best_coarse=80.0, covariance=np.eye(3))
-    weak = GroupFit(pose=np.zeros(3), score=24.0, rival=20.0, best_coarse=32.0, covariance=np.eye(3))
-    assert weak.rival / weak.best_coarse == strong.rival / strong.best_coarse < settings.ambiguity_ratio
-    assert accept(strong, settings) == ""
-    assert accept(weak, settings).startswith("ambiguous")
-    assert accept(weak, GroupFitSettings(min_margin=10.0)) == ""
-
-
 class _Profile:
     """A score that depends on x only, called as :class:`FineScore` is."""
 

@@ -34,9 +34,7 @@ covariance of the score's curvature (:func:`score_covariance`).
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
-farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it and at least
-``min_margin`` cells less (a ratio alone passes a weak fit whose rival is as weak; the difference of
-two scores is a log-likelihood ratio, ``SCORE_TEMPERATURE`` cells per unit), and neither group is a
+farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, and neither group is a
 tunnel seen from inside (two parallel walls fit every passage of their width,
 :func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no stretch of wall across water, walls not in
 the water of the other scans) before it merges the groups.
@@ -80,7 +78,6 @@ class GroupFitSettings:
     min_spread: float = 0.1
     min_refined_share: float = 0.2
     ambiguity_ratio: float = 0.8
-    min_margin: float = 15.0
     separation_m: float = 0.5
 
 
@@ -290,7 +287,7 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     if fit.score < s.min_refined_share * fit.best_coarse:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search")
-    if fit.rival > s.ambiguity_ratio * fit.best_coarse or fit.best_coarse - fit.rival < s.min_margin:
+    if fit.rival > s.ambiguity_ratio * fit.best_coarse:
         return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
                 f"the best {fit.best_coarse:.0f}")
     return ""

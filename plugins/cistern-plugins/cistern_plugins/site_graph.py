@@ -67,10 +67,9 @@ builds a graph over the whole site instead, in three steps.
    every translation and a ±``group_yaw_window_deg`` heading window for the placement of one group in the
    other's frame that lays walls on walls seen from the same side, and no wall in water either group
    saw (open beams count as water); it joins two groups when its score reaches ``group_min_score``, no
-   place 0.5 m away scores more than ``group_ambiguity_ratio`` of it or comes within
-   ``group_min_margin`` of it, neither group is a tunnel seen from inside (two parallel walls fit every
-   passage of their width), and the join passes the wall check. Only groups
-   the survey visited one after the other are fitted (two of their stations at most
+   place 0.5 m away scores more than ``group_ambiguity_ratio`` of it, neither group is a tunnel seen
+   from inside (two parallel walls fit every passage of their width), and the join passes the wall
+   check. Only groups the survey visited one after the other are fitted (two of their stations at most
    ``group_max_gap`` places apart in the survey's order): across stations that neither group holds, a
    fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
    chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest accepted fit joins first, until
@@ -147,9 +146,6 @@ class SiteGraphParams(GraphParams):
                                    "(cells of 0.1 m of agreeing wall, both ways)")
     group_ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="a group fit joins only when no place "
                                          "0.5 m or more away scores more than this share of the best")
-    group_min_margin: float = Field(15.0, ge=0, description="a group fit joins only when the best place "
-                                    "outscores every place 0.5 m or more away by this many cells (a log-likelihood "
-                                    "ratio of 15 / 4, odds of about 40 to 1)")
     group_free_penalty: float = Field(5.0, ge=0, description="what a wall point in the other group's water "
                                       "costs, against 1 for an agreeing one")
     group_yaw_window_deg: float = Field(6.0, ge=0, le=45, description="heading window of a group fit "
@@ -161,7 +157,6 @@ class SiteGraphParams(GraphParams):
     def group_settings(self) -> GroupFitSettings:
         """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""
         return GroupFitSettings(min_score=self.group_min_score, ambiguity_ratio=self.group_ambiguity_ratio,
-                                min_margin=self.group_min_margin,
                                 free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg,
                                 compass_sigma_deg=self.compass_sigma_deg)
 
