@@ -36,8 +36,9 @@ cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of
 peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
 farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it, and neither group is a
 tunnel seen from inside (two parallel walls fit every passage of their width,
-:func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check (no stretch of wall across water, walls not in
-the water of the other scans) before it merges the groups.
+:func:`~cistern_plugins.group_clouds.wall_spread`). site-graph then puts the join to its own wall check
+(no stretch of wall across water, walls not in the water of the other scans) before it merges the
+groups.
 """
 
 from __future__ import annotations
