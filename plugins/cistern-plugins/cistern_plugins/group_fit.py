@@ -313,9 +313,9 @@ def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
     floor = SCORE_TEMPERATURE / MAX_SIGMA**2
     vals = np.maximum(vals, floor)
     for k in range(3):
-        along = vecs[:2, k]
-        if np.hypot(*along) > 0.9 and SCORE_TEMPERATURE / vals[k] > PROFILE_FROM_M**2:
-            sigma = profile_sigma(score, pose, along / np.hypot(*along))
+        length = float(np.hypot(*vecs[:2, k]))
+        if length > 0.9 and SCORE_TEMPERATURE / vals[k] > PROFILE_FROM_M**2:
+            sigma = profile_sigma(score, pose, vecs[:2, k] / length)
             vals[k] = max(vals[k], SCORE_TEMPERATURE / sigma**2)
     information = (vecs * vals) @ vecs.T * np.outer(scale, scale)
     cov = SCORE_TEMPERATURE * np.linalg.inv(information)
@@ -338,11 +338,13 @@ def profile_sigma(score: FineScore, pose: np.ndarray, direction: np.ndarray) -> 
     a Gaussian falling so (``d * sqrt(T / (2 dS))``), but never less than the flat stretch before it
     (uniform over ``±d_prev``: ``d_prev / sqrt(3)``); :data:`MAX_SIGMA` when the score never falls.
     """
-    top = float(score(pose[None, :], prior=False)[0])
+    steps = np.asarray(PROFILE_STEPS_M)
+    offsets = np.concatenate([steps, -steps])[:, None] * np.asarray(direction)[None, :]
+    probes = np.column_stack([pose[:2] + offsets, np.full(len(offsets), pose[2])])
+    values = score(np.vstack([pose[None, :], probes]), prior=False)
+    drops = values[0] - np.maximum(values[1:len(steps) + 1], values[len(steps) + 1:])
     flat = 0.0
-    for d in PROFILE_STEPS_M:
-        probes = np.array([[*(pose[:2] + sign * d * direction), pose[2]] for sign in (1.0, -1.0)])
-        drop = top - float(score(probes, prior=False).max())
+    for d, drop in zip(steps, drops):
         if drop >= 0.5 * SCORE_TEMPERATURE:
             return min(MAX_SIGMA, max(d * math.sqrt(SCORE_TEMPERATURE / (2.0 * drop)), flat / math.sqrt(3.0)))
         flat = d

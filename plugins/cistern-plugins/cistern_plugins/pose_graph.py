@@ -22,8 +22,10 @@ displacement is ``R(c_i) d_ij``, which is exactly GTSAM's ``BetweenFactorPose2``
 wrapped in a robust M-estimator (``huber`` or ``cauchy``), so a wrong match that slipped through is
 down-weighted; the match covariance is floored at ``min_sigma_xy_m`` so that no single match is
 trusted beyond the accuracy scan matching reaches on sonar data. The compass is trusted up to
-``compass_sigma_deg`` (a prior on every ``c_k``; 2° by default, about twice a Micron-class compass's
-noise, so that small yaw errors of the matches cannot accumulate along a chain of scans), and the reference scan (in the largest group of scans
+``compass_sigma_deg`` (a prior on every ``c_k`` about the compasses' common frame,
+:func:`cistern_plugins.factor_graph.add_compass_factors`; 2° by default, about twice a Micron-class
+compass's noise, so that small yaw errors of the matches cannot accumulate along a chain of scans),
+and the reference scan (in the largest group of scans
 joined by converged matches, the one with most matches, lowest index on ties — cf. Table III) is
 anchored at the origin. Levenberg–Marquardt solves the graph; then, for up to ``gate_rounds`` rounds,
 the match whose squared Mahalanobis residual is largest is dropped if it exceeds ``gate_chi2``

@@ -77,7 +77,8 @@ builds a graph over the whole site instead, in three steps.
    groups see end to end. Every edge left over is checked against the merged geometry as before.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
-   ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction,
+   ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction
+   about the compasses' common frame (:func:`cistern_plugins.factor_graph.add_compass_factors`),
    and a χ² gate that drops the worst edge while its squared Mahalanobis residual exceeds ``gate_chi2``.
    When the gate cuts the reference station off (every edge of it contradicted by the others or by the
    compasses), the largest set of scans the kept edges still join is anchored on its first station and

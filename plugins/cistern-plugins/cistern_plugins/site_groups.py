@@ -408,24 +408,25 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
         groups = sorted(set(graph.group))
         if len(groups) < 2:
             return added
+        members = {g: graph.members(g) for g in groups}
         candidates, far_apart = [], []
         for x, ga in enumerate(groups):
             for gb in groups[x + 1:]:
-                big, small = (ga, gb) if len(graph.members(ga)) >= len(graph.members(gb)) else (gb, ga)
-                gap = survey_gap(graph.members(big), graph.members(small))
+                big, small = (ga, gb) if len(members[ga]) >= len(members[gb]) else (gb, ga)
+                gap = survey_gap(members[big], members[small])
                 if gap > p.group_max_gap:
-                    why = (f"not fitted as a group with {walls.label(graph.members(big)[0])}'s group: "
+                    why = (f"not fitted as a group with {walls.label(members[big][0])}'s group: "
                            f"{far_apart_reason(gap, p.group_max_gap)}")
-                    far_apart += [(k, why) for k in graph.members(small)]
+                    far_apart += [(k, why) for k in members[small]]
                     continue
-                probe = graph.members(small)[0]
+                probe = members[small][0]
                 a, b = level_members(graph, scans, big, scans[probe], p), level_members(graph, scans, small, scans[probe], p)
                 if not a or not b:
                     continue
                 fit, spreads = group_fit(scans, graph, a, b, p, digest)
                 why = accept(fit, p.group_settings(), spreads)
                 if why:
-                    for k in graph.members(small):
+                    for k in members[small]:
                         graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group: {why}")
                     continue
                 candidates.append((fit.score, a, b, fit))
