@@ -150,7 +150,7 @@ def fill_small_holes(water: np.ndarray, max_cells: float) -> np.ndarray:
     return water | small[holes]
 
 
-def _signed_distance(water: np.ndarray, cell_m: float) -> np.ndarray:
+def signed_distance(water: np.ndarray, cell_m: float) -> np.ndarray:
     """Metres from every cell centre to the water's edge: positive outside the water, negative inside."""
     if not water.any():
         return np.full(water.shape, 1e3, dtype=np.float32)
@@ -212,7 +212,7 @@ def wall_surface(map_result: MapResult, poses: Poses, depths_m: Sequence[float],
         probability = resample(grid, origin, cell, shape)
         stations = lattice.cell_of(slice_stations(grid, poses, depths_m, params.slice_tolerance_m))
         water, walls = water_and_walls(probability, cell, stations, params)
-        sdf.append(_signed_distance(water, cell) - params.wall_offset_m)
+        sdf.append(signed_distance(water, cell) - params.wall_offset_m)
         unseen.append(unseen_edges(water, walls, cell, params.max_gap_m / 2.0))
         seen_any = seen_any or bool(walls.any())
     if not seen_any:

@@ -4,7 +4,8 @@
 marina``) whose data stays where it is (the record names the folder); ``cistern-archive rebuild``
 builds it like a cistern (:mod:`cistern_archive.navigation.site`). The record names every stage:
 the survey's matcher and localizer (:class:`~cistern_archive.navigation.pipeline.SurveyConfig`'s
-defaults) and the installed mapper at a cell size for a 50 m-range sonar.
+defaults) and the installed mapper at a cell size for a 50 m-range sonar, without the correction for
+leaning walls (:mod:`cistern_archive.grid.lobe`).
 """
 
 from __future__ import annotations
@@ -71,7 +72,8 @@ def marina_record(data: Path, catalog: Path, *, keyframes: int | None = None, si
         "pipeline": {
             "matcher": {"plugin": survey.matcher, "params": survey.matcher_params},
             "localizer": {"plugin": survey.localizer, "params": survey.localizer_params},
-            "mapper": {"plugin": mapper, "params": {"cell_m": MAP_CELL_M}},
+            # The vehicle's changes of depth are not levels of one room whose walls lean between them.
+            "mapper": {"plugin": mapper, "params": {"cell_m": MAP_CELL_M, "lobe_correction": False}},
         },
         "seed": survey.seed,
     }

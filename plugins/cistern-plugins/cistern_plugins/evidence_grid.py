@@ -20,6 +20,7 @@ import numpy as np
 from pydantic import Field
 
 from cistern_archive.grid.evidence import SonarModel, scan_window
+from cistern_archive.grid.lobe import correct_for_lobe
 from cistern_archive.grid.tiles import TiledGrid
 from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses, StageParams
 from cistern_archive.core.scan import RangeScan
@@ -38,6 +39,13 @@ class GridParams(StageParams):
     depth_tolerance_m: float = Field(0.25, ge=0, description="scans this close in depth share a slice")
     tile_cells: int = Field(64, ge=8, le=1024, description="tile side in cells")
     pad_cells: int = Field(2, ge=0, description="unknown cells kept around the exported grid")
+    lobe_correction: bool = Field(True, description="correct echo ranges on leaning walls for the vertical "
+                                  "lobe where slices lie at several depths (cistern_archive.grid.lobe)")
+    lobe_detection_deg: float = Field(3.0, ge=0, lt=45, description="elevation off the beam's axis, towards "
+                                      "a leaning wall, at which its echo forms")
+    lobe_max_lean_deg: float = Field(60.0, gt=0, lt=80, description="leans read from the slices are capped here")
+    lobe_reach_m: float = Field(1.5, gt=0, description="another slice's wall farther than this from an echo "
+                                "is not its wall")
 
 
 class EvidenceGridMapper:
@@ -47,8 +55,25 @@ class EvidenceGridMapper:
     Params: ClassVar[type[StageParams]] = GridParams
 
     def build(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams) -> MapResult:
-        """Fuse every placed scan into the grid of its depth slice."""
+        """Fuse every placed scan into the grid of its depth slice; where the slices lie at several
+        depths, fuse them again with their echoes corrected for the lean of their walls
+        (:func:`cistern_archive.grid.lobe.correct_for_lobe`)."""
         p = GridParams.of(params)
+        first = self.fuse(scans, poses, p)
+        if not p.lobe_correction:
+            return first
+        corrected, leans = correct_for_lobe(scans, poses, first.grids, p.lobe_detection_deg, p.lobe_max_lean_deg,
+                                            p.lobe_reach_m)
+        if not leans.size:
+            return first
+        final = self.fuse(corrected, poses, p)
+        stats = {**final.stats, "lobe_corrected_echoes": float(leans.size),
+                 "lobe_median_lean_deg": float(np.median(leans))}
+        return MapResult(grids=final.grids, stats=stats)
+
+    @staticmethod
+    def fuse(scans: Sequence[RangeScan], poses: Poses, p: GridParams) -> MapResult:
+        """Every placed scan's inverse sonar model added to the tiled grid of its depth slice."""
         model = SonarModel(
             l_occ=p.l_occ, l_free=p.l_free, clamp_min=p.clamp_min, clamp_max=p.clamp_max,
             free_no_echo=p.free_no_echo,

@@ -1,0 +1,143 @@
+"""Echo ranges on leaning walls, corrected for the sonar's wide vertical lobe.
+
+A mechanically scanned sonar's beam is narrow across (3°) but wide in elevation (35° on a Micron). On a
+vertical wall the echo forms where the beam's axis meets it. On a wall that leans by ``α`` from the
+vertical towards the vehicle above (a bell widening with depth) or below, the rays a little off the axis
+towards the lean meet it nearer, the nearer the steeper, and the wall's echo, spread over the slant
+ranges of the whole lobe, peaks before the axis's range: every echo on such a wall is short by a share
+that grows with the lean (``benchmarks/RESULTS.md``, "why the bell-shaped cistern misses": 4-5 % at
+45°), and the slice's walls come out inside the true ones.
+
+If the segmented echo forms at the elevation ``β`` off the axis towards the lean (``detection_deg``),
+a wall at horizontal distance ``R`` at the sonar's depth, leaning by ``α ≥ β`` in the beam's plane, is
+met at the slant range ``r = R cos α / cos(α − β)``; so ``R = r cos(α − β) / cos α``, and ``R = r / cos α``
+where ``α < β`` (the nearest point of the wall, met at normal incidence, lies within the angle).
+
+The lean is read from the map itself, where a site was scanned at several depths: the first maps of the
+depth slices give the water each slice saw (as :mod:`cistern_archive.grid.surface` reads it), and at
+every echo the outward offset of the other slices' walls from this slice's wall, against depth, is fitted
+by a parabola through this slice and the two nearest others (a straight line with one other), whose
+slope at the slice's depth is ``tan α``. Where another slice's wall lies farther than ``reach_m`` from
+the echo (not the same wall, or not seen) the echo is not corrected; the lean is capped at
+``max_lean_deg``. One depth slice: nothing changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from cistern_archive.core.grids import EvidenceGrid
+from cistern_archive.core.poses import Poses
+from cistern_archive.core.scan import RangeScan
+from cistern_archive.grid.surface import SurfaceParams, signed_distance, slice_stations, water_and_walls
+from cistern_archive.grid.volume import common_lattice, resample
+
+SAME_LEVEL_M = 0.3
+"""Slices closer in depth than this are one depth level."""
+
+
+def range_factor(lean_rad: np.ndarray, detection_rad: float) -> np.ndarray:
+    """``R / r``: the horizontal distance of the wall at the sonar's depth over the echo's range, for
+    walls leaning by ``lean_rad`` (see the module docstring)."""
+    lean = np.abs(np.asarray(lean_rad, dtype=float))
+    return np.cos(np.maximum(lean - detection_rad, 0.0)) / np.cos(lean)
+
+
+@dataclasses.dataclass(frozen=True)
+class SliceWater:
+    """The water one depth slice saw, as a signed distance on the slices' common lattice (metres,
+    positive outside the water)."""
+
+    depth_m: float
+    signed_m: np.ndarray
+
+
+def slice_waters(grids: Sequence[EvidenceGrid], poses: Poses, depths_m: Sequence[float],
+                 params: SurfaceParams | None = None) -> tuple[EvidenceGrid, list[SliceWater]]:
+    """Every slice's water on one lattice (an empty grid that carries the lattice) ."""
+    params = params or SurfaceParams()
+    origin, cell, shape = common_lattice(grids)
+    lattice = EvidenceGrid(np.zeros(shape, dtype=np.float32), origin, cell, 0.0)
+    waters = []
+    for grid in grids:
+        stations = lattice.cell_of(slice_stations(grid, poses, depths_m, params.slice_tolerance_m))
+        water, _ = water_and_walls(resample(grid, origin, cell, shape), cell, stations, params)
+        waters.append(SliceWater(float(grid.depth_m), signed_distance(water, cell)))
+    return lattice, waters
+
+
+def slope_at_zero(dz: Sequence[float], offsets: Sequence[np.ndarray]) -> np.ndarray:
+    """The slope at 0 of the curve through ``(0, 0)`` and ``(dz[k], offsets[k])``: a line with one other
+    point, a parabola with two (where one of the two is ``nan`` the line through the other)."""
+    if len(dz) == 1:
+        return offsets[0] / dz[0]
+    (z1, z2), (w1, w2) = dz[:2], offsets[:2]
+    parabola = (w1 * z2 ** 2 - w2 * z1 ** 2) / (z1 * z2 * (z2 - z1))
+    return np.where(np.isfinite(parabola), parabola, np.where(np.isfinite(w1), w1 / z1, w2 / z2))
+
+
+def echo_lean(scan: RangeScan, xy_m: np.ndarray, yaw_rad: float, lattice: EvidenceGrid,
+              waters: Sequence[SliceWater], reach_m: float) -> np.ndarray:
+    """The lean from the vertical (radians, ≥ 0) of the wall at every beam's echo; ``nan`` where it
+    cannot be read (no echo, outside the lattice, no other slice's wall within ``reach_m``)."""
+    lean = np.full(scan.ranges_m.shape, np.nan)
+    own = min(waters, key=lambda w: abs(w.depth_m - scan.depth_m))
+    others = sorted((w for w in waters if abs(w.depth_m - own.depth_m) >= SAME_LEVEL_M),
+                    key=lambda w: abs(w.depth_m - own.depth_m))[:2]
+    echo = np.isfinite(scan.ranges_m)
+    if not others or not echo.any():
+        return lean
+    angles = scan.bearings_rad[echo] + yaw_rad
+    points = np.asarray(xy_m, dtype=float)[None, :] + scan.ranges_m[echo][:, None] * np.column_stack(
+        [np.cos(angles), np.sin(angles)])
+    cells = lattice.cell_of(points)
+    rows, cols = lattice.log_odds.shape
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < rows) & (cells[:, 1] >= 0) & (cells[:, 1] < cols)
+    r, c = np.clip(cells[:, 0], 0, rows - 1), np.clip(cells[:, 1], 0, cols - 1)
+    offsets = []
+    for other in others:
+        outward = own.signed_m[r, c] - other.signed_m[r, c]  # how far the other slice's wall lies beyond
+        offsets.append(np.where(inside & (np.abs(outward) < reach_m), outward, np.nan))
+    slope = slope_at_zero([w.depth_m - own.depth_m for w in others], offsets)
+    lean[echo] = np.arctan(np.abs(slope))
+    return lean
+
+
+def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[EvidenceGrid],
+                     detection_deg: float, max_lean_deg: float, reach_m: float) -> tuple[list[RangeScan], np.ndarray]:
+    """Every placed scan with its echo ranges corrected for the lean of their walls (module docstring).
+
+    Parameters
+    ----------
+    scans, poses : the mapper's input; unplaced scans are returned unchanged.
+    grids : the first maps of the depth slices (corrected only when they lie at two depths or more).
+    detection_deg : elevation off the beam's axis, towards the lean, at which the echo forms (``β``).
+    max_lean_deg : the lean is capped here.
+    reach_m : other slices' walls farther than this from an echo are not its wall.
+
+    Returns
+    -------
+    scans : list of RangeScan
+    leans_deg : ndarray
+        The lean read at every corrected echo (degrees), for the map's statistics.
+    """
+    depths = sorted(g.depth_m for g in grids)
+    if len(depths) < 2 or depths[-1] - depths[0] < SAME_LEVEL_M:
+        return list(scans), np.zeros(0)
+    lattice, waters = slice_waters(grids, poses, [s.depth_m for s in scans])
+    detection, cap = math.radians(detection_deg), math.radians(max_lean_deg)
+    out, leans = [], []
+    for k, scan in enumerate(scans):
+        if not bool(poses.placed[k]):
+            out.append(scan)
+            continue
+        lean = echo_lean(scan, poses.xy_m[k], float(poses.yaw_rad[k]), lattice, waters, reach_m)
+        known = np.isfinite(lean)
+        factor = np.where(known, range_factor(np.minimum(np.nan_to_num(lean), cap), detection), 1.0)
+        out.append(dataclasses.replace(scan, ranges_m=scan.ranges_m * factor))
+        leans.append(np.degrees(np.minimum(lean[known], cap)))
+    return out, np.concatenate(leans) if leans else np.zeros(0)
