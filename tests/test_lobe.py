@@ -71,7 +71,7 @@ def test_a_room_leaning_over_the_vehicle_is_mapped_out_to_its_walls():
     scans, poses = cone_scans()
     mapper = EvidenceGridMapper()
     plain = mapper.build(scans, poses, GridParams(lobe_correction=False))
-    corrected = mapper.build(scans, poses, GridParams(lobe_detection_deg=3.0))
+    corrected = mapper.build(scans, poses, GridParams(lobe_detection_share=3.0 / 17.5))
     truth = [cone_radius(g.depth_m) for g in corrected.grids]
     short = [truth[k] - wall_radius(g) for k, g in enumerate(plain.grids)]
     assert min(short) > 0.06  # 4 % short at 1.6-3.3 m, as the lobe left them
@@ -91,3 +91,16 @@ def test_a_site_scanned_at_one_depth_is_mapped_as_before():
     on, off = mapper.build(scans, poses, GridParams()), mapper.build(scans, poses, GridParams(lobe_correction=False))
     assert np.array_equal(on.grids[0].log_odds, off.grids[0].log_odds)
     assert "lobe_corrected_echoes" not in on.stats
+
+
+def test_the_correction_scales_with_the_vertical_beam():
+    """A head with a narrow beam in elevation hears a leaning wall where its axis meets it."""
+    scans, poses = cone_scans()
+    narrow = [dataclasses.replace(s, vertical_beam_width_rad=math.radians(4.0)) for s in scans]
+    mapper = EvidenceGridMapper()
+    wide = mapper.build(scans, poses, GridParams())
+    thin = mapper.build(narrow, poses, GridParams())
+    plain = mapper.build(scans, poses, GridParams(lobe_correction=False))
+    moved = [wall_radius(a) - wall_radius(b) for a, b in zip(wide.grids, plain.grids)]
+    barely = [wall_radius(a) - wall_radius(b) for a, b in zip(thin.grids, plain.grids)]
+    assert min(moved) > 0.05 and max(abs(m) for m in barely) < 0.3 * min(moved)

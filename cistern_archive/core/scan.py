@@ -40,6 +40,10 @@ def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
     )
 
 
+VERTICAL_BEAM_WIDTH_RAD = math.radians(35.0)
+"""A Micron-class head's beam width in elevation, where a scan does not say otherwise."""
+
+
 @dataclass(frozen=True, eq=False)
 class Scan:
     """One stationary sweep of a mechanically scanned imaging sonar.
@@ -66,6 +70,8 @@ class Scan:
         Device name, e.g. ``"Tritech Micron DST"``.
     beam_width_rad : float
         Horizontal beam width.
+    vertical_beam_width_rad : float
+        The beam's width in elevation (35° on a Micron, the default).
     station : str
         Station label (where the vehicle landed for this sweep).
     settings : dict
@@ -85,6 +91,7 @@ class Scan:
     timestamp: float = float("nan")
     sonar_model: str = "unknown"
     beam_width_rad: float = math.radians(3.0)
+    vertical_beam_width_rad: float = VERTICAL_BEAM_WIDTH_RAD
     station: str = ""
     settings: dict[str, Any] = field(default_factory=dict)
     beam_times_s: np.ndarray | None = None
@@ -163,6 +170,8 @@ class RangeScan:
         Radial and angular resolution, used by inverse sensor models.
     station : str
         Station label.
+    vertical_beam_width_rad : float
+        The beam's width in elevation, as in :class:`Scan`.
     time_s : float
         Reference time (Unix s) of a scan from a moving vehicle, its echoes motion compensated to it;
         ``nan`` for a stationary scan.
@@ -179,6 +188,7 @@ class RangeScan:
     bin_size_m: float
     beam_width_rad: float
     station: str = ""
+    vertical_beam_width_rad: float = VERTICAL_BEAM_WIDTH_RAD
     time_s: float = float("nan")
     odometry: np.ndarray | None = None
 

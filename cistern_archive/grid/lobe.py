@@ -8,7 +8,8 @@ ranges of the whole lobe, peaks before the axis's range: every echo on such a wa
 that grows with the lean (``benchmarks/RESULTS.md``, "why the bell-shaped cistern misses": 4-5 % at
 45°), and the slice's walls come out inside the true ones.
 
-If the segmented echo forms at the elevation ``β`` off the axis towards the lean (``detection_deg``),
+If the segmented echo forms at the elevation ``β`` off the axis towards the lean, a share of the half
+width of the vertical beam (``detection_share``: the beam pattern scales with its width),
 a wall at horizontal distance ``R`` at the sonar's depth, leaning by ``α ≥ β`` in the beam's plane, is
 met at the slant range ``r = R cos α / cos(α − β)``; so ``R = r cos(α − β) / cos α``, and ``R = r / cos α``
 where ``α < β`` (the nearest point of the wall, met at normal incidence, lies within the angle).
@@ -108,14 +109,15 @@ def echo_lean(scan: RangeScan, xy_m: np.ndarray, yaw_rad: float, lattice: Eviden
 
 
 def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[EvidenceGrid],
-                     detection_deg: float, max_lean_deg: float, reach_m: float) -> tuple[list[RangeScan], np.ndarray]:
+                     detection_share: float, max_lean_deg: float, reach_m: float) -> tuple[list[RangeScan], np.ndarray]:
     """Every placed scan with its echo ranges corrected for the lean of their walls (module docstring).
 
     Parameters
     ----------
     scans, poses : the mapper's input; unplaced scans are returned unchanged.
     grids : the first maps of the depth slices (corrected only when they lie at two depths or more).
-    detection_deg : elevation off the beam's axis, towards the lean, at which the echo forms (``β``).
+    detection_share : elevation off the beam's axis, towards the lean, at which the echo forms (``β``), as
+        a share of the half width of each scan's vertical beam.
     max_lean_deg : the lean is capped here.
     reach_m : other slices' walls farther than this from an echo are not its wall.
 
@@ -129,7 +131,7 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
     if len(depths) < 2 or depths[-1] - depths[0] < SAME_LEVEL_M:
         return list(scans), np.zeros(0)
     lattice, waters = slice_waters(grids, poses, [s.depth_m for s in scans])
-    detection, cap = math.radians(detection_deg), math.radians(max_lean_deg)
+    cap = math.radians(max_lean_deg)
     out, leans = [], []
     for k, scan in enumerate(scans):
         if not bool(poses.placed[k]):
@@ -137,6 +139,7 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
             continue
         lean = echo_lean(scan, poses.xy_m[k], float(poses.yaw_rad[k]), lattice, waters, reach_m)
         known = np.isfinite(lean)
+        detection = detection_share * scan.vertical_beam_width_rad / 2
         factor = np.where(known, range_factor(np.minimum(np.nan_to_num(lean), cap), detection), 1.0)
         out.append(dataclasses.replace(scan, ranges_m=scan.ranges_m * factor))
         leans.append(np.degrees(np.minimum(lean[known], cap)))

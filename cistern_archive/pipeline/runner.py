@@ -94,12 +94,14 @@ def record_ties(record: SiteRecord) -> tuple[VerticalTie, ...]:
 
 
 def load_scan(loaded: LoadedRecord, ref: ScanRef) -> Scan:
-    """Read the scan a record references and apply the record's station, heading and depth."""
+    """Read the scan a record references and apply the record's station, heading and depth, and its
+    sonar's vertical beam width."""
     result = read_file(loaded.resolve(ref.file), ref.format)
     if ref.index >= len(result.scans):
         raise ValueError(f"file holds {len(result.scans)} scan(s); index {ref.index} requested")
     scan = result.scans[ref.index]
-    changes: dict[str, Any] = {"station": ref.station}
+    changes: dict[str, Any] = {"station": ref.station,
+                               "vertical_beam_width_rad": math.radians(loaded.record.sonar.vertical_beam_width_deg)}
     if ref.yaw_deg is not None:
         changes["yaw_rad"] = math.radians(90.0 - ref.yaw_deg)
     if ref.depth_m is not None:

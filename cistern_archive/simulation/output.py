@@ -115,6 +115,7 @@ def build_record(site: SimulatedSite, scan_files: list[str], spec_ref: str | Non
     sonar = SonarSettings(
         model=spec.sonar.model, frequency_khz=spec.sonar.frequency_khz, range_m=spec.sonar.range_m,
         bins=spec.sonar.bins, step_deg=spec.sonar.step_deg, beam_width_deg=spec.sonar.beam_width_deg,
+        vertical_beam_width_deg=spec.sonar.vertical_beam_width_deg,
     )
     return SiteRecord(
         id=spec.id, name=spec.name, description=spec.description.strip(), location=spec.location,

@@ -461,6 +461,7 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
         bin_size_m=scan.bin_size_m,
         beam_width_rad=scan.beam_width_rad,
         station=scan.station,
+        vertical_beam_width_rad=scan.vertical_beam_width_rad,
     )
 
 

@@ -41,8 +41,9 @@ class GridParams(StageParams):
     pad_cells: int = Field(2, ge=0, description="unknown cells kept around the exported grid")
     lobe_correction: bool = Field(True, description="correct echo ranges on leaning walls for the vertical "
                                   "lobe where slices lie at several depths (cistern_archive.grid.lobe)")
-    lobe_detection_deg: float = Field(3.0, ge=0, lt=45, description="elevation off the beam's axis, towards "
-                                      "a leaning wall, at which its echo forms")
+    lobe_detection_share: float = Field(0.17, ge=0, le=1, description="elevation off the beam's axis, towards a "
+                                        "leaning wall, at which its echo forms, as a share of the vertical "
+                                        "beam's half width (0.17: 3° of a Micron's 35°)")
     lobe_max_lean_deg: float = Field(60.0, gt=0, lt=80, description="leans read from the slices are capped here")
     lobe_reach_m: float = Field(1.5, gt=0, description="another slice's wall farther than this from an echo "
                                 "is not its wall")
@@ -62,7 +63,7 @@ class EvidenceGridMapper:
         first = self.fuse(scans, poses, p)
         if not p.lobe_correction:
             return first
-        corrected, leans = correct_for_lobe(scans, poses, first.grids, p.lobe_detection_deg, p.lobe_max_lean_deg,
+        corrected, leans = correct_for_lobe(scans, poses, first.grids, p.lobe_detection_share, p.lobe_max_lean_deg,
                                             p.lobe_reach_m)
         if not leans.size:
             return first
