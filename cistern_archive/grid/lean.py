@@ -4,7 +4,9 @@ A mechanically scanned sonar's beam is narrow across (3°) but wide in elevation
 that leans over the vehicle answers first from above (or below) the sonar's depth, nearer than where
 the beam's axis meets it, so a slice's walls come out short where the walls lean, and so does a
 dimension measured between them (``benchmarks/RESULTS.md``, "why the bell-shaped cistern misses": a bell
-whose walls lean 47° is mapped 0.30 m short across at that depth). With slices at several depths, the
+whose walls lean 47° was mapped 0.30 m short across at that depth; the mapper now corrects the echoes
+for the lean, :mod:`cistern_archive.grid.lobe`, and the lean read here still flags such a dimension as
+resting on that correction). With slices at several depths, the
 lean at each end of a probe line is the change of that end's wall position from the dimension's slice to
 the nearest other slice, over the depth between them.
 """

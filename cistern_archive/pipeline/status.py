@@ -38,9 +38,11 @@ MAX_PROBE_STD_M = 0.20
 """A dimension whose probes spread by more than this (sample std, metres) is weak."""
 MAX_WALL_LEAN_DEG = 30.0
 """A dimension whose walls lean more than this from the vertical (:func:`cistern_archive.grid.lean.wall_lean_deg`)
-is weak: the sonar's wide vertical beam hears a leaning wall short. On the bundled bell-shaped cistern
-(a 35° vertical beam) the dimensions between walls leaning 23–25° lay within their 95 % intervals; the
-one between walls leaning 45° came out 0.30 m (7.8 %) short, outside its interval."""
+is weak: the sonar's wide vertical beam hears a leaning wall nearer than it is. On the bundled bell-shaped
+cistern (a 35° vertical beam), before the mapper corrected echoes for the lean
+(:mod:`cistern_archive.grid.lobe`), the dimensions between walls leaning 23–25° lay within their 95 %
+intervals; the one between walls leaning 45° came out 0.30 m (7.8 %) short, outside its interval. The
+correction rests on the lean read between the slices, so such a dimension stays weak."""
 
 MAX_JOIN_CI95_M = 0.25
 """A join of two parts of the map whose 95 % half-width (along its least certain direction) exceeds this
@@ -86,7 +88,8 @@ def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_le
     if wall_lean_deg is not None and wall_lean_deg > MAX_WALL_LEAN_DEG:
         reasons.append(f"its walls lean about {wall_lean_deg:.0f}° from the vertical "
                        f"(above {MAX_WALL_LEAN_DEG:.0f}°): "
-                       "the sonar's vertical beam hears a leaning wall short, so the map is likely too short")
+                       "the sonar's tall vertical beam hears a leaning wall nearer than it is, by an amount "
+                       "that depends on the lean")
     return "; ".join(reasons)
 
 
