@@ -2,7 +2,7 @@
 
 ``--random N`` bells (:mod:`cistern_archive.simulation.bells`, seeded by ``--seed``) are simulated,
 built by the runner with their records' pipeline (``--mapper-params`` overrides the mapper's
-parameters, e.g. ``'{"lobe_correction": false}'``), and scored: the 3D model as
+parameters, e.g. ``'{"lobe_correction": false}'``, and ``--localizer-params`` the localizer's), and scored: the 3D model as
 ``benchmarks/model3d.py`` scores it (surface distances, share outside the true walls), the scans'
 aligned errors as ``benchmarks/sites.py`` does, and every truth dimension (length and width at each
 scanned depth): the map's value minus the truth, and whether its 95 % interval holds the truth.
@@ -53,9 +53,10 @@ def with_mapper_params(loaded, params: dict):
     return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))
 
 
-def score_bell(path: Path, catalog: Path, mapper_params: dict) -> dict:
+def score_bell(path: Path, catalog: Path, mapper_params: dict, localizer_params: dict) -> dict:
     """Build one generated bell and score its model, its scans and its dimensions."""
     loaded = with_mapper_params(load_record(path, catalog), mapper_params)
+    loaded = sites.with_localizer(loaded, (None, localizer_params))
     start = time.perf_counter()
     build = build_site(loaded)
     seconds = time.perf_counter() - start
@@ -88,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--workers", type=int, default=1, help="sites built in parallel")
     parser.add_argument("--mapper-params", type=json.loads, default={}, help="mapper parameters as JSON")
+    parser.add_argument("--localizer-params", type=json.loads, default={}, help="localizer parameters as JSON")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
     args = parser.parse_args(argv)
     if args.random < 1 or args.workers < 1:
@@ -95,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bells-") as folder:
         catalog = Path(folder)
         paths = write_bell_catalog(catalog, args.random, seed=args.seed)
-        jobs = [(path, catalog, args.mapper_params) for path in paths]
+        jobs = [(path, catalog, args.mapper_params, args.localizer_params) for path in paths]
         if args.workers > 1:
             with ProcessPoolExecutor(max_workers=args.workers) as pool:
                 rows = list(pool.map(score_bell, *zip(*jobs)))
@@ -114,7 +116,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{total['dimensions']} dimensions: mean error {total['dimension_bias_m']:+.3f} m, mean |error| "
           f"{total['dimension_abs_m']:.3f} m, {total['covered']} within their 95 % interval ('!' marks the others)")
     if args.json:
-        print(json.dumps({"seed": args.seed, "mapper_params": args.mapper_params, **total, "rows": rows}, sort_keys=True))
+        print(json.dumps({"seed": args.seed, "mapper_params": args.mapper_params, "localizer_params": args.localizer_params,
+                          **total, "rows": rows}, sort_keys=True))
     return 0
 
 
