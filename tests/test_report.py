@@ -79,6 +79,20 @@ def test_an_unseen_wall_is_left_open_not_invented():
     assert (centroids[:, 0] < -0.8).any()  # the seen west wall is there
 
 
+def test_a_gap_in_one_slice_between_walls_seen_above_and_below_is_closed():
+    depths = [1.0, 2.0, 3.0]
+    gap_in_middle = (_box_grid(1.0, depth=1.0), _box_grid(1.0, depth=2.0, open_side=True), _box_grid(1.0, depth=3.0))
+    gap_everywhere = tuple(_box_grid(1.0, depth=d, open_side=True) for d in depths)
+
+    def east_wall(grids):
+        mesh = wall_surface(MapResult(grids), _poses(3), depths)
+        centroids = mesh.points[mesh.triangles].mean(axis=1)
+        return ((centroids[:, 0] > 0.8) & (np.abs(centroids[:, 1]) < 0.6) & (np.abs(-centroids[:, 2] - 2.0) < 0.3)).any()
+
+    assert east_wall(gap_in_middle)  # seen above and below: no hole that reads as a passage
+    assert not east_wall(gap_everywhere)  # seen at no depth: left open
+
+
 def test_walls_curve_through_several_slices_like_a_bell():
     grids = (_box_grid(1.0, depth=1.0), _box_grid(2.0, depth=2.0), _box_grid(2.5, depth=3.0))
     mesh = wall_surface(MapResult(grids), _poses(3), [1.0, 2.0, 3.0])

@@ -21,7 +21,8 @@ Sec. III-D):
 5. the surface is cut with :func:`skimage.measure.marching_cubes`; triangles at an edge of the water
    farther than ``max_gap_m / 2`` from every wall seen (marked per slice, interpolated in depth like
    the walls) are dropped: a gap in the walls narrower than ``max_gap_m`` is closed, a wider one (or
-   the unseen end of a gallery) stays open rather than being invented.
+   the unseen end of a gallery) stays open rather than being invented. A gap in one slice whose
+   neighbouring slices saw a wall there is closed too (:func:`seen_beside`).
 
 The mesh is in the map frame, metres, z up (``z = -depth``).
 """
@@ -170,6 +171,17 @@ def unseen_edges(water: np.ndarray, walls: np.ndarray, cell_m: float, reach_m: f
     return (ndimage.distance_transform_edt(~unseen) <= 2.0).astype(np.float32)
 
 
+def seen_beside(unseen: np.ndarray) -> np.ndarray:
+    """The unseen edges of (S, H, W) slices kept only where a neighbouring slice in depth leaves that
+    place unseen too: a wall seen above and below a slice's gap bounds the water between them, so the
+    model closes it rather than open a hole an archaeologist would read as a passage. One slice is
+    unchanged (nothing beside it)."""
+    if len(unseen) < 2:
+        return unseen
+    beside = np.maximum(np.concatenate([unseen[1:2], unseen[:-1]]), np.concatenate([unseen[1:], unseen[-2:-1]]))
+    return np.minimum(unseen, beside)
+
+
 def _layers(slice_depths: np.ndarray, params: SurfaceParams) -> np.ndarray:
     if len(slice_depths) == 1:
         top = max(0.0, slice_depths[0] - params.extend_m)
@@ -220,7 +232,7 @@ def wall_surface(map_result: MapResult, poses: Poses, depths_m: Sequence[float],
     slice_depths = np.array([g.depth_m for g in grids])
     slice_depths, first = np.unique(slice_depths, return_index=True)
     sdf = np.stack([sdf[k] for k in first])
-    unseen = np.stack([unseen[k] for k in first])
+    unseen = seen_beside(np.stack([unseen[k] for k in first]))
     layers = _layers(slice_depths, params)
     volume = across_depth(sdf, slice_depths, layers, params.depth_interpolation)
     unseen_layers = interpolate_layers(unseen, slice_depths, layers)
