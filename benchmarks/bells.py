@@ -9,7 +9,10 @@ scanned depth): the map's value minus the truth, and whether its 95 % interval h
 
 Usage::
 
-    .venv/bin/python benchmarks/bells.py --random 12 --seed 1 [--workers 2] [--mapper-params JSON] [--json]
+    .venv/bin/python benchmarks/bells.py --random 12 --seed 1 [--workers 2] [--vertical] [--mapper-params JSON] [--json]
+
+``--vertical`` builds wells with vertical walls, scanned the same way: the control, on which a
+correction for leaning walls should change nothing.
 
 The last line of ``--json`` is ``{"seed", "sites", "median_surface_m", "p95_surface_m",
 "outside_area_fraction", "dimension_bias_m", "dimension_abs_m", "dimensions", "covered", ...}``: medians
@@ -89,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--workers", type=int, default=1, help="sites built in parallel")
     parser.add_argument("--mapper-params", type=json.loads, default={}, help="mapper parameters as JSON")
+    parser.add_argument("--vertical", action="store_true", help="wells with vertical walls instead (the control)")
     parser.add_argument("--localizer-params", type=json.loads, default={}, help="localizer parameters as JSON")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
     args = parser.parse_args(argv)
@@ -96,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--random and --workers must be at least 1")
     with tempfile.TemporaryDirectory(prefix="bells-") as folder:
         catalog = Path(folder)
-        paths = write_bell_catalog(catalog, args.random, seed=args.seed)
+        paths = write_bell_catalog(catalog, args.random, seed=args.seed, vertical=args.vertical)
         jobs = [(path, catalog, args.mapper_params, args.localizer_params) for path in paths]
         if args.workers > 1:
             with ProcessPoolExecutor(max_workers=args.workers) as pool:

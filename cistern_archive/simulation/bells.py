@@ -7,7 +7,8 @@ al., Sec. III-A). It is scanned at two or three depths about
 1 m apart, three stations per depth; the vehicle descends vertically from the last station of one
 depth to the first of the next (a ``below`` tie, 3 cm of drift). The true length and width of every
 scanned depth are its references. Specs are written to ``ROOT/specs/`` and simulated into
-``ROOT/data/`` and ``ROOT/sites/`` as :mod:`cistern_archive.simulation.synthetic` does.
+``ROOT/data/`` and ``ROOT/sites/`` as :mod:`cistern_archive.simulation.synthetic` does. With
+``vertical`` the same sites have vertical walls (wells scanned at several depths: the control).
 """
 
 from __future__ import annotations
@@ -26,13 +27,14 @@ LEVEL_STEP_M = 1.0
 """Depth between the levels that define the walls."""
 
 
-def bell_levels(rng: np.random.Generator) -> tuple[list[dict], list[tuple[float, float, float]]]:
-    """The spec's levels and, per level, ``(depth, semi-major, semi-minor)`` of its ellipse."""
-    neck = float(rng.uniform(0.4, 0.8))
+def bell_levels(rng: np.random.Generator, vertical: bool = False) -> tuple[list[dict], list[tuple[float, float, float]]]:
+    """The spec's levels and, per level, ``(depth, semi-major, semi-minor)`` of its ellipse (``vertical``:
+    a well of one ellipse, its semi-major axis 1.8-3 m, at every depth)."""
+    neck = float(rng.uniform(1.8, 3.0) if vertical else rng.uniform(0.4, 0.8))
     ratio = float(rng.uniform(0.8, 0.95))
     rotation = float(rng.uniform(0.0, 180.0))
     floor = float(rng.uniform(4.0, 5.5))
-    lean = math.radians(rng.uniform(30.0, 60.0))
+    lean = 0.0 if vertical else math.radians(rng.uniform(30.0, 60.0))
     depths = [0.3] + [float(d) for d in np.arange(1.0, floor, LEVEL_STEP_M)] + [floor]
     shape, radius = [], neck
     for k, depth in enumerate(depths):
@@ -73,9 +75,10 @@ def bell_stations(rng: np.random.Generator, shape: list[tuple[float, float, floa
     return stations
 
 
-def bell_spec(index: int, rng: np.random.Generator) -> dict:
-    """The simulator spec (as a mapping) of generated bell ``index``."""
-    levels, shape = bell_levels(rng)
+def bell_spec(index: int, rng: np.random.Generator, vertical: bool = False) -> dict:
+    """The simulator spec (as a mapping) of generated bell ``index`` (``vertical``: a well with vertical
+    walls, scanned the same way)."""
+    levels, shape = bell_levels(rng, vertical)
     stations = bell_stations(rng, shape)
     rotation = levels[0]["walls"]["rotation_deg"]
     references = []
@@ -103,15 +106,15 @@ def bell_spec(index: int, rng: np.random.Generator) -> dict:
     }
 
 
-def write_bell_catalog(root: Path, n_sites: int, *, seed: int = 0) -> list[Path]:
-    """Write ``n_sites`` simulated bell-shaped cisterns under the catalog root ``root``; return their
-    record paths."""
+def write_bell_catalog(root: Path, n_sites: int, *, seed: int = 0, vertical: bool = False) -> list[Path]:
+    """Write ``n_sites`` simulated bell-shaped cisterns (``vertical``: wells with vertical walls) under the
+    catalog root ``root``; return their record paths."""
     root = Path(root)
     (root / "specs").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     records = []
     for index in range(n_sites):
         spec_path = root / "specs" / f"bell-{index:03d}.yaml"
-        spec_path.write_text(yaml.safe_dump(bell_spec(index, rng), sort_keys=False), encoding="utf-8")
+        spec_path.write_text(yaml.safe_dump(bell_spec(index, rng, vertical), sort_keys=False), encoding="utf-8")
         records.append(write_site(simulate_site(load_spec(spec_path)), root, spec_path=spec_path, record_dir="sites"))
     return records
