@@ -1,0 +1,46 @@
+"""Generated bell-shaped cisterns (cistern_archive.simulation.bells) and benchmarks/bells.py."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cistern_archive.simulation.bells import bell_spec
+from cistern_archive.simulation.spec import SimulationSpec
+from cistern_archive.sonar.geometry import contains, interpolate_slice
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("vertical", [False, True])
+def test_generated_bells_are_valid_specs_with_stations_in_the_water(vertical: bool):
+    rng = np.random.default_rng(3)
+    for index in range(5):
+        spec = SimulationSpec.model_validate(bell_spec(index, rng, vertical))
+        levels = spec.site.slices()
+        for station in spec.stations:
+            assert contains(interpolate_slice(levels, station.depth_m), np.array([[station.x_m, station.y_m]]))[0]
+        depths = sorted({s.depth_m for s in spec.stations})
+        assert 2 <= len(depths) <= 3 and all(s.below for s in spec.stations if s.name.endswith("a") and s.name != "d1a")
+        radii = [level.walls.ellipse[2] for level in spec.site.levels]
+        assert (np.ptp(radii) == 0) == vertical  # a well's walls are vertical, a bell widens with depth
+        assert len(spec.references) == 2 * len(depths)
+
+
+@pytest.mark.slow
+def test_the_lobe_correction_takes_the_bells_dimensions_nearer_the_truth():
+    def run(params: str) -> dict:
+        done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bells.py"), "--random", "3", "--seed", "12",
+                               "--mapper-params", params, "--json"], capture_output=True, text=True, timeout=600,
+                              check=True)
+        return json.loads(done.stdout.strip().splitlines()[-1])
+
+    off, on = run('{"lobe_correction": false}'), run("{}")
+    assert off["dimension_bias_m"] < -0.05  # short: the tall vertical beam hears the leaning walls near
+    assert abs(on["dimension_bias_m"]) < 0.5 * abs(off["dimension_bias_m"])
+    assert on["median_surface_m"] < off["median_surface_m"]
