@@ -17,11 +17,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from cistern_archive.simulation.output import write_site
-from cistern_archive.simulation.simulator import simulate_site
-from cistern_archive.simulation.spec import load_spec
+from cistern_archive.simulation.output import write_generated
 
 LEVEL_STEP_M = 1.0
 """Depth between the levels that define the walls."""
@@ -109,12 +106,5 @@ def bell_spec(index: int, rng: np.random.Generator, vertical: bool = False) -> d
 def write_bell_catalog(root: Path, n_sites: int, *, seed: int = 0, vertical: bool = False) -> list[Path]:
     """Write ``n_sites`` simulated bell-shaped cisterns (``vertical``: wells with vertical walls) under the
     catalog root ``root``; return their record paths."""
-    root = Path(root)
-    (root / "specs").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    records = []
-    for index in range(n_sites):
-        spec_path = root / "specs" / f"bell-{index:03d}.yaml"
-        spec_path.write_text(yaml.safe_dump(bell_spec(index, rng, vertical), sort_keys=False), encoding="utf-8")
-        records.append(write_site(simulate_site(load_spec(spec_path)), root, spec_path=spec_path, record_dir="sites"))
-    return records
+    return write_generated(root, (bell_spec(index, rng, vertical) for index in range(n_sites)))

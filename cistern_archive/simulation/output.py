@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +38,8 @@ from cistern_archive.catalog.models import (
 from cistern_archive.core.files import write_text_atomic
 from cistern_archive.sonar.geometry import interpolate_slice, ray_cast
 from cistern_archive.sonar.interchange import write_scan
-from cistern_archive.simulation.simulator import SimulatedSite, TruePose, station_rng
-from cistern_archive.simulation.spec import MeasureSpec, ReferenceSpec, SimulationSpec
+from cistern_archive.simulation.simulator import SimulatedSite, TruePose, simulate_site, station_rng
+from cistern_archive.simulation.spec import MeasureSpec, ReferenceSpec, SimulationSpec, load_spec
 
 TRUTH_SCHEMA = "cistern-archive/simulation-truth"
 
@@ -206,3 +207,16 @@ def write_site(site: SimulatedSite, out: Path, *, spec_path: Path | None = None,
     record_path = out / record_dir / f"{spec_id}.yaml"
     write_text_atomic(record_path, record_yaml(record, spec_ref))
     return record_path
+
+
+def write_generated(root: Path, specs: Iterable[dict]) -> list[Path]:
+    """Write each generated spec (a mapping) to ``ROOT/specs/<id>.yaml`` and simulate it into the catalog
+    ``root`` (``data/``, ``sites/``); return the records' paths."""
+    root = Path(root)
+    (root / "specs").mkdir(parents=True, exist_ok=True)
+    records = []
+    for spec in specs:
+        spec_path = root / "specs" / f"{spec['id']}.yaml"
+        spec_path.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+        records.append(write_site(simulate_site(load_spec(spec_path)), root, spec_path=spec_path, record_dir="sites"))
+    return records

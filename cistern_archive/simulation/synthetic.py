@@ -10,10 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import yaml
-from cistern_archive.simulation.output import write_site
-from cistern_archive.simulation.simulator import simulate_site
-from cistern_archive.simulation.spec import load_spec
+from cistern_archive.simulation.output import write_generated
 
 
 def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None = None) -> dict:
@@ -57,13 +54,5 @@ def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None
 
 def write_synthetic_catalog(root: Path, n_sites: int, *, seed: int = 0, stations: int | None = None) -> list[Path]:
     """Write ``n_sites`` simulated sites under the catalog root ``root``; return their record paths."""
-    root = Path(root)
-    (root / "specs").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    records = []
-    for index in range(n_sites):
-        spec_path = root / "specs" / f"cistern-{index:03d}.yaml"
-        spec_path.write_text(yaml.safe_dump(synthetic_spec(index, rng, stations=stations), sort_keys=False),
-                             encoding="utf-8")
-        records.append(write_site(simulate_site(load_spec(spec_path)), root, spec_path=spec_path, record_dir="sites"))
-    return records
+    return write_generated(root, (synthetic_spec(index, rng, stations=stations) for index in range(n_sites)))
