@@ -92,8 +92,9 @@ class SonarSettings(Strict):
     bins: int | None = Field(default=None, gt=0)
     step_deg: float | None = Field(default=None, gt=0)
     beam_width_deg: float = Field(default=3.0, gt=0, lt=90)
-    vertical_beam_width_deg: float = Field(default=35.0, gt=0, lt=90,
-                                           description="the beam's width in elevation (a Micron's: 35°)")
+    vertical_beam_width_deg: float | None = Field(default=None, gt=0, lt=90,
+                                                  description="the beam's width in elevation; not given: a "
+                                                  "Micron's 35° is assumed")
     gain: float | None = Field(default=None, ge=0)
 
 

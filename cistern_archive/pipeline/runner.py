@@ -100,8 +100,9 @@ def load_scan(loaded: LoadedRecord, ref: ScanRef) -> Scan:
     if ref.index >= len(result.scans):
         raise ValueError(f"file holds {len(result.scans)} scan(s); index {ref.index} requested")
     scan = result.scans[ref.index]
-    changes: dict[str, Any] = {"station": ref.station,
-                               "vertical_beam_width_rad": math.radians(loaded.record.sonar.vertical_beam_width_deg)}
+    changes: dict[str, Any] = {"station": ref.station}
+    if loaded.record.sonar.vertical_beam_width_deg is not None:
+        changes["vertical_beam_width_rad"] = math.radians(loaded.record.sonar.vertical_beam_width_deg)
     if ref.yaw_deg is not None:
         changes["yaw_rad"] = math.radians(90.0 - ref.yaw_deg)
     if ref.depth_m is not None:

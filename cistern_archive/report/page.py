@@ -63,7 +63,10 @@ def sonar_text(record: Any) -> str:
         parts.append(f"range {sonar.range_m:g} m")
     if sonar.step_deg:
         parts.append(f"step {sonar.step_deg:g}°")
-    parts.append(f"beam width {sonar.beam_width_deg:g}°")
+    if sonar.vertical_beam_width_deg is None:
+        parts.append(f"beam width {sonar.beam_width_deg:g}°")
+    else:
+        parts.append(f"beam {sonar.beam_width_deg:g}° wide and {sonar.vertical_beam_width_deg:g}° tall")
     return ", ".join(parts)
 
 
