@@ -1,15 +1,17 @@
 """Generated bell-shaped cisterns through the real pipeline: 3D models and dimensions on leaning walls.
 
 ``--random N`` bells (:mod:`cistern_archive.simulation.bells`, seeded by ``--seed``) are simulated,
-built by the runner with their records' pipeline (``--mapper-params`` overrides the mapper's
-parameters, e.g. ``'{"lobe_correction": false}'``, and ``--localizer-params`` the localizer's), and scored: the 3D model as
-``benchmarks/model3d.py`` scores it (surface distances, share outside the true walls), the scans'
-aligned errors as ``benchmarks/sites.py`` does, and every truth dimension (length and width at each
-scanned depth): the map's value minus the truth, and whether its 95 % interval holds the truth.
+built by the runner with their records' pipeline (``--mapper-params``, ``--localizer-params`` and
+``--matcher-params`` add parameters to those stages', e.g. ``--mapper-params '{"lobe_correction":
+false}'``), and scored: the 3D model as ``benchmarks/model3d.py`` scores it (surface distances, share
+outside the true walls), the scans' aligned errors as ``benchmarks/sites.py`` does, and every truth
+dimension (length and width at each scanned depth): the map's value minus the truth, and whether its
+95 % interval holds the truth.
 
 Usage::
 
-    .venv/bin/python benchmarks/bells.py --random 12 --seed 1 [--workers 2] [--vertical] [--mapper-params JSON] [--json]
+    .venv/bin/python benchmarks/bells.py --random 12 --seed 1 [--workers 2] [--vertical] \
+        [--mapper-params JSON] [--localizer-params JSON] [--matcher-params JSON] [--json]
 
 ``--vertical`` builds wells with vertical walls, scanned the same way: the control, on which a
 correction for leaning walls should change nothing.
@@ -28,7 +30,6 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -37,8 +38,6 @@ sys.path.insert(0, str(ROOT))
 import model3d  # noqa: E402
 import sites  # noqa: E402
 from cistern_archive.catalog.loader import load_record  # noqa: E402
-from cistern_archive.catalog.models import StageChoice  # noqa: E402
-from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
 from cistern_archive.simulation.bells import write_bell_catalog  # noqa: E402
 from cistern_archive.simulation.spec import load_spec  # noqa: E402
@@ -46,20 +45,12 @@ from cistern_archive.simulation.spec import load_spec  # noqa: E402
 MODEL_KEYS = ("median_surface_m", "p95_surface_m", "outside_area_fraction")
 
 
-def with_mapper_params(loaded, params: dict):
-    """The record with these mapper parameters (on its own mapper plugin)."""
-    if not params:
-        return loaded
-    current = default_registry().choice(loaded.record.pipeline, "mapper")
-    choice = StageChoice(plugin=current.plugin, params={**current.params, **params})
-    pipeline = loaded.record.pipeline.model_copy(update={"mapper": choice})
-    return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))
-
-
-def score_bell(path: Path, catalog: Path, mapper_params: dict, localizer_params: dict) -> dict:
-    """Build one generated bell and score its model, its scans and its dimensions."""
-    loaded = with_mapper_params(load_record(path, catalog), mapper_params)
-    loaded = sites.with_localizer(loaded, (None, localizer_params))
+def score_bell(path: Path, catalog: Path, params: dict[str, dict]) -> dict:
+    """Build one generated bell (``params``: stage → parameters added to the record's) and score its
+    model, its scans and its dimensions."""
+    loaded = load_record(path, catalog)
+    for stage, values in params.items():
+        loaded = sites.with_stage(loaded, stage, None, values)
     start = time.perf_counter()
     build = build_site(loaded)
     seconds = time.perf_counter() - start
@@ -94,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mapper-params", type=json.loads, default={}, help="mapper parameters as JSON")
     parser.add_argument("--vertical", action="store_true", help="wells with vertical walls instead (the control)")
     parser.add_argument("--localizer-params", type=json.loads, default={}, help="localizer parameters as JSON")
+    parser.add_argument("--matcher-params", type=json.loads, default={}, help="matcher parameters as JSON")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
     args = parser.parse_args(argv)
     if args.random < 1 or args.workers < 1:
@@ -101,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bells-") as folder:
         catalog = Path(folder)
         paths = write_bell_catalog(catalog, args.random, seed=args.seed, vertical=args.vertical)
-        jobs = [(path, catalog, args.mapper_params, args.localizer_params) for path in paths]
+        params = {"mapper": args.mapper_params, "localizer": args.localizer_params, "matcher": args.matcher_params}
+        jobs = [(path, catalog, params) for path in paths]
         if args.workers > 1:
             with ProcessPoolExecutor(max_workers=args.workers) as pool:
                 rows = list(pool.map(score_bell, *zip(*jobs)))
@@ -120,8 +113,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{total['dimensions']} dimensions: mean error {total['dimension_bias_m']:+.3f} m, mean |error| "
           f"{total['dimension_abs_m']:.3f} m, {total['covered']} within their 95 % interval ('!' marks the others)")
     if args.json:
-        print(json.dumps({"seed": args.seed, "mapper_params": args.mapper_params, "localizer_params": args.localizer_params,
-                          **total, "rows": rows}, sort_keys=True))
+        print(json.dumps({"seed": args.seed, "params": params, **total, "rows": rows}, sort_keys=True))
     return 0
 
 

@@ -94,15 +94,15 @@ from cistern_archive.simulation.spec import load_spec  # noqa: E402
 from cistern_plugins.registration import ConvergenceThresholds, ReferenceModel  # noqa: E402
 
 
-def with_localizer(loaded, localizer: tuple[str | None, dict] | None):
-    """The record with another localizer plugin and/or localizer parameters (``(name, params)``; a
-    ``None`` name keeps the record's plugin), or unchanged."""
-    name, params = localizer or (None, {})
+def with_stage(loaded, stage: str, name: str | None = None, params: dict | None = None):
+    """The record with another plugin for ``stage`` and/or more parameters (a ``None`` name keeps the
+    record's plugin and adds ``params`` to its own), or unchanged."""
     if name is None and not params:
         return loaded
-    current = default_registry().choice(loaded.record.pipeline, "localizer")
-    choice = StageChoice(plugin=name or current.plugin, params=params)
-    pipeline = loaded.record.pipeline.model_copy(update={"localizer": choice})
+    current = default_registry().choice(loaded.record.pipeline, stage)
+    kept = current.params if name is None or name == current.plugin else {}
+    choice = StageChoice(plugin=name or current.plugin, params={**kept, **(params or {})})
+    pipeline = loaded.record.pipeline.model_copy(update={stage: choice})
     return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))
 
 
@@ -231,9 +231,13 @@ def far_pair_scores(loaded, build, truth: SiteTruth, limit: int) -> list[dict]:
     return rows
 
 
-def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0) -> dict | None:
-    """Build one site with the runner and score it against its truth (module docstring)."""
-    loaded = with_localizer(load_record(path, catalog), localizer)
+def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0,
+               matcher_params: dict | None = None) -> dict | None:
+    """Build one site with the runner and score it against its truth (module docstring); ``localizer``
+    is ``(name, params)`` (:func:`with_stage`), ``matcher_params`` are added to the record's matcher's."""
+    name, params = localizer or (None, {})
+    loaded = with_stage(with_stage(load_record(path, catalog), "localizer", name, params), "matcher", None,
+                        matcher_params)
     record = loaded.record
     if not record.truth:
         return None
@@ -424,7 +428,8 @@ def demo_main(args) -> int:
     for path in record_paths(args.catalog):
         if args.site and path.stem not in args.site:
             continue
-        row = score_site(path, args.catalog, (args.localizer, args.localizer_params))
+        row = score_site(path, args.catalog, (args.localizer, args.localizer_params),
+                         matcher_params=args.matcher_params)
         if row is not None:
             rows.append(row)
     print_rows(rows)
@@ -438,13 +443,13 @@ def demo_main(args) -> int:
     return 0
 
 
-def _random_site(job: tuple[Path, Path, str | None, int]) -> dict:
+def _random_site(job: tuple[Path, Path, tuple[str | None, dict], int, dict]) -> dict:
     """Simulate one random site into the temporary catalog, build it and score it (one worker's job)."""
-    spec_path, catalog, localizer, far_limit = job
+    spec_path, catalog, localizer, far_limit, matcher_params = job
     start = time.perf_counter()
     record_path = simulate_into(spec_path, catalog)
     simulated = time.perf_counter() - start
-    row = score_site(record_path, catalog, localizer, far_limit)
+    row = score_site(record_path, catalog, localizer, far_limit, matcher_params)
     row["simulation_seconds"] = simulated
     return row
 
@@ -461,7 +466,7 @@ def random_main(args) -> int:
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="random-cisterns-") as tmp:
         catalog = Path(tmp)
-        jobs = [(path, catalog, (args.localizer, args.localizer_params), args.far_pairs)
+        jobs = [(path, catalog, (args.localizer, args.localizer_params), args.far_pairs, args.matcher_params)
                 for path in write_specs(cisterns, catalog)]
         if args.workers > 1:
             with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -512,6 +517,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--localizer", help="use this localizer plugin instead of the records' own")
     parser.add_argument("--localizer-params", type=json.loads, default={},
                         help='localizer parameters as JSON, e.g. \'{"bridge_confidence": 0.8}\'')
+    parser.add_argument("--matcher-params", type=json.loads, default={},
+                        help="parameters added to the records' matcher's, as JSON")
     parser.add_argument("--random", type=int, metavar="N", help="N random multi-chamber cisterns instead of the catalog")
     parser.add_argument("--seed", type=int, default=1, help="seed of the random cisterns")
     parser.add_argument("--workers", type=int, default=1, help="sites built in parallel (--random)")
