@@ -5,6 +5,9 @@ the echo, echo band ``± max(bin, cell) / 2``, see :mod:`cistern_archive.grid.ev
 slice's :class:`~cistern_archive.grid.tiles.TiledGrid`, then the slice is clamped. Scans are grouped into
 slices by depth: sorted by depth, a scan joins the current slice while it is within
 ``depth_tolerance_m`` of the slice's first scan; a slice's depth is the mean of its scans' depths.
+Where the slices lie at several depths, the echoes are corrected for the lean of their walls, read from
+these first slices, and fused again (``lobe_*``, :mod:`cistern_archive.grid.lobe`: a tall vertical beam
+hears a leaning wall nearer than it is).
 
 Storage: the fused grid lives in fixed-size tiles allocated on touch (the paper used an octree); the
 dense :class:`~cistern_archive.pipeline.contracts.EvidenceGrid` handed on is the non-zero bounding box
