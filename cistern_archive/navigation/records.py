@@ -60,7 +60,7 @@ def marina_record(data: Path, catalog: Path, *, keyframes: int | None = None, si
                        "team": ["D. Ribas", "P. Ridao", "J. D. Tardós", "J. Neira"]},
         "location": {"place": "St. Pere Pescador, Girona, Spain", "redact": False},
         "sonar": {"model": "Tritech Miniking", "frequency_khz": 675.0, "range_m": 50.0, "bins": 500,
-                  "step_deg": 1.8, "beam_width_deg": 3.0},
+                  "step_deg": 1.8, "beam_width_deg": 3.0, "vertical_beam_width_deg": 40.0},
         "survey": {
             "kind": "marina",
             "data": record_data_path(data, catalog),
