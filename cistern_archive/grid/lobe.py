@@ -34,8 +34,7 @@ import numpy as np
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.poses import Poses
 from cistern_archive.core.scan import RangeScan
-from cistern_archive.grid.surface import SurfaceParams, signed_distance, slice_stations, water_and_walls
-from cistern_archive.grid.volume import common_lattice, resample
+from cistern_archive.grid.surface import SurfaceParams, signed_distance, slice_waters
 
 SAME_LEVEL_M = 0.3
 """Slices closer in depth than this are one depth level."""
@@ -57,18 +56,13 @@ class SliceWater:
     signed_m: np.ndarray
 
 
-def slice_waters(grids: Sequence[EvidenceGrid], poses: Poses, depths_m: Sequence[float],
-                 params: SurfaceParams | None = None) -> tuple[EvidenceGrid, list[SliceWater]]:
-    """Every slice's water on one lattice (an empty grid that carries the lattice) ."""
-    params = params or SurfaceParams()
-    origin, cell, shape = common_lattice(grids)
-    lattice = EvidenceGrid(np.zeros(shape, dtype=np.float32), origin, cell, 0.0)
-    waters = []
-    for grid in grids:
-        stations = lattice.cell_of(slice_stations(grid, poses, depths_m, params.slice_tolerance_m))
-        water, _ = water_and_walls(resample(grid, origin, cell, shape), cell, stations, params)
-        waters.append(SliceWater(float(grid.depth_m), signed_distance(water, cell)))
-    return lattice, waters
+def signed_waters(grids: Sequence[EvidenceGrid], poses: Poses, depths_m: Sequence[float]
+                  ) -> tuple[EvidenceGrid, list[SliceWater]]:
+    """Every slice's water as the wall surface reads it (:func:`~cistern_archive.grid.surface.slice_waters`),
+    as signed distances on one lattice, and the empty grid that carries the lattice."""
+    lattice, pieces = slice_waters(grids, poses, depths_m, SurfaceParams())
+    return lattice, [SliceWater(float(grid.depth_m), signed_distance(water, lattice.cell_m))
+                     for grid, (water, _) in zip(grids, pieces)]
 
 
 def slope_at_zero(dz: Sequence[float], offsets: Sequence[np.ndarray]) -> np.ndarray:
@@ -89,13 +83,10 @@ def echo_lean(scan: RangeScan, xy_m: np.ndarray, yaw_rad: float, lattice: Eviden
     own = min(waters, key=lambda w: abs(w.depth_m - scan.depth_m))
     others = sorted((w for w in waters if abs(w.depth_m - own.depth_m) >= SAME_LEVEL_M),
                     key=lambda w: abs(w.depth_m - own.depth_m))[:2]
-    echo = np.isfinite(scan.ranges_m)
+    echo = scan.valid
     if not others or not echo.any():
         return lean
-    angles = scan.bearings_rad[echo] + yaw_rad
-    points = np.asarray(xy_m, dtype=float)[None, :] + scan.ranges_m[echo][:, None] * np.column_stack(
-        [np.cos(angles), np.sin(angles)])
-    cells = lattice.cell_of(points)
+    cells = lattice.cell_of(np.asarray(xy_m, dtype=float)[None, :] + scan.points(yaw_rad=yaw_rad))
     rows, cols = lattice.log_odds.shape
     inside = (cells[:, 0] >= 0) & (cells[:, 0] < rows) & (cells[:, 1] >= 0) & (cells[:, 1] < cols)
     r, c = np.clip(cells[:, 0], 0, rows - 1), np.clip(cells[:, 1], 0, cols - 1)
@@ -127,10 +118,9 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
     leans_deg : ndarray
         The lean read at every corrected echo (degrees), for the map's statistics.
     """
-    depths = sorted(g.depth_m for g in grids)
-    if len(depths) < 2 or depths[-1] - depths[0] < SAME_LEVEL_M:
+    if not grids or np.ptp([g.depth_m for g in grids]) < SAME_LEVEL_M:
         return list(scans), np.zeros(0)
-    lattice, waters = slice_waters(grids, poses, [s.depth_m for s in scans])
+    lattice, waters = signed_waters(grids, poses, [s.depth_m for s in scans])
     cap = math.radians(max_lean_deg)
     out, leans = [], []
     for k, scan in enumerate(scans):

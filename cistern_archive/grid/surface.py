@@ -137,6 +137,19 @@ def water_and_walls(probability: np.ndarray, cell_m: float, station_cells: np.nd
     return water, walls
 
 
+def slice_waters(grids: Sequence[EvidenceGrid], poses: Poses, depths_m: Sequence[float], params: SurfaceParams
+                 ) -> tuple[EvidenceGrid, list[tuple[np.ndarray, np.ndarray]]]:
+    """Every slice's water and walls (:func:`water_and_walls`) on the slices' common lattice, and an
+    empty grid that carries that lattice."""
+    origin, cell, shape = common_lattice(grids)
+    lattice = EvidenceGrid(np.zeros(shape, dtype=np.float32), origin, cell, 0.0)
+    pieces = []
+    for grid in grids:
+        stations = lattice.cell_of(slice_stations(grid, poses, depths_m, params.slice_tolerance_m))
+        pieces.append(water_and_walls(resample(grid, origin, cell, shape), cell, stations, params))
+    return lattice, pieces
+
+
 def fill_small_holes(water: np.ndarray, max_cells: float) -> np.ndarray:
     """The water with its enclosed holes of fewer than ``max_cells`` cells filled: speckle and single
     ghost echoes inside the water would otherwise stand in the model as posts (a pillar is larger)."""
@@ -178,8 +191,9 @@ def seen_beside(unseen: np.ndarray) -> np.ndarray:
     unchanged (nothing beside it)."""
     if len(unseen) < 2:
         return unseen
-    beside = np.maximum(np.concatenate([unseen[1:2], unseen[:-1]]), np.concatenate([unseen[1:], unseen[-2:-1]]))
-    return np.minimum(unseen, beside)
+    above = np.concatenate([unseen[1:2], unseen[:-1]])  # slice k - 1 (the first slice: the one below it)
+    below = np.concatenate([unseen[1:], unseen[-2:-1]])  # slice k + 1 (the last slice: the one above it)
+    return np.minimum(unseen, np.maximum(above, below))
 
 
 def _layers(slice_depths: np.ndarray, params: SurfaceParams) -> np.ndarray:
@@ -217,18 +231,12 @@ def wall_surface(map_result: MapResult, poses: Poses, depths_m: Sequence[float],
     grids = sorted(map_result.grids, key=lambda g: g.depth_m)
     if not grids or not np.asarray(poses.placed).any():
         return None
-    origin, cell, shape = common_lattice(grids)
-    lattice = EvidenceGrid(np.zeros(shape, dtype=np.float32), origin, cell, 0.0)
-    sdf, unseen, seen_any = [], [], False
-    for grid in grids:
-        probability = resample(grid, origin, cell, shape)
-        stations = lattice.cell_of(slice_stations(grid, poses, depths_m, params.slice_tolerance_m))
-        water, walls = water_and_walls(probability, cell, stations, params)
-        sdf.append(signed_distance(water, cell) - params.wall_offset_m)
-        unseen.append(unseen_edges(water, walls, cell, params.max_gap_m / 2.0))
-        seen_any = seen_any or bool(walls.any())
-    if not seen_any:
+    lattice, pieces = slice_waters(grids, poses, depths_m, params)
+    origin, cell = lattice.origin_xy_m, lattice.cell_m
+    if not any(walls.any() for _, walls in pieces):
         return None
+    sdf = [signed_distance(water, cell) - params.wall_offset_m for water, _ in pieces]
+    unseen = [unseen_edges(water, walls, cell, params.max_gap_m / 2.0) for water, walls in pieces]
     slice_depths = np.array([g.depth_m for g in grids])
     slice_depths, first = np.unique(slice_depths, return_index=True)
     sdf = np.stack([sdf[k] for k in first])

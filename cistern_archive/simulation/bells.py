@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.simulation.output import write_generated
+from cistern_archive.simulation.output import generated_header, write_generated
 
 LEVEL_STEP_M = 1.0
 """Depth between the levels that define the walls."""
@@ -88,12 +88,9 @@ def bell_spec(index: int, rng: np.random.Generator, vertical: bool = False) -> d
                                                "spacing_m": 0.1, "depth_m": station["depth_m"]}})
     floor = shape[-1][0]
     return {
-        "schema_version": 1,
-        "id": f"bell-{index:03d}",
-        "name": f"Generated bell-shaped cistern {index:03d}",
-        "description": f"Simulated bell-shaped cistern {floor:.1f} m deep, base {2 * shape[-1][1]:.1f} m across.",
-        "location": {"place": "simulated", "redact": True},
-        "seed": int(rng.integers(0, 2**31)),
+        **generated_header(f"bell-{index:03d}", f"Generated bell-shaped cistern {index:03d}",
+                           f"Simulated bell-shaped cistern {floor:.1f} m deep, base {2 * shape[-1][1]:.1f} m across.",
+                           rng),
         "site": {"water_depth_m": round(floor, 2), "levels": levels},
         "segmentation": {"method": "shadow", "threshold": 50, "min_range_m": 0.4},
         "sonar": {"range_m": 6.0, "bins": 150, "step_deg": 0.9},

@@ -209,6 +209,13 @@ def write_site(site: SimulatedSite, out: Path, *, spec_path: Path | None = None,
     return record_path
 
 
+def generated_header(site_id: str, name: str, description: str, rng: np.random.Generator) -> dict:
+    """The first fields of a generated site's spec (a mapping): schema, id, name, description, a
+    redacted simulated location and a seed drawn from ``rng``."""
+    return {"schema_version": 1, "id": site_id, "name": name, "description": description,
+            "location": {"place": "simulated", "redact": True}, "seed": int(rng.integers(0, 2**31))}
+
+
 def write_generated(root: Path, specs: Iterable[dict]) -> list[Path]:
     """Write each generated spec (a mapping) to ``ROOT/specs/<id>.yaml`` and simulate it into the catalog
     ``root`` (``data/``, ``sites/``); return the records' paths."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from cistern_archive.simulation.output import write_generated
+from cistern_archive.simulation.output import generated_header, write_generated
 
 
 def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None = None) -> dict:
@@ -31,12 +31,8 @@ def synthetic_spec(index: int, rng: np.random.Generator, *, stations: int | None
         })
     inside = [float(np.round(length / 2, 2)), float(np.round(width / 2, 2))]  # site frame
     return {
-        "schema_version": 1,
-        "id": f"cistern-{index:03d}",
-        "name": f"Generated cistern {index:03d}",
-        "description": f"Simulated rectangular cistern {length} m x {width} m with {n} stations.",
-        "location": {"place": "simulated", "redact": True},
-        "seed": int(rng.integers(0, 2**31)),
+        **generated_header(f"cistern-{index:03d}", f"Generated cistern {index:03d}",
+                           f"Simulated rectangular cistern {length} m x {width} m with {n} stations.", rng),
         "site": {"water_depth_m": 2.0, "levels": [{"depth_m": 0.0, "walls": {"rectangle": [0.0, 0.0, length, width]}}]},
         "sonar": {"model": "Tritech Micron DST", "frequency_khz": 700, "range_m": 8.0, "bins": 200, "step_deg": 0.9,
                   "beam_width_deg": 3.0},
