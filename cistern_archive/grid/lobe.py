@@ -5,8 +5,8 @@ vertical wall the echo forms where the beam's axis meets it. On a wall that lean
 vertical towards the vehicle above (a bell widening with depth) or below, the rays a little off the axis
 towards the lean meet it nearer, the nearer the steeper, and the wall's echo, spread over the slant
 ranges of the whole lobe, peaks before the axis's range: every echo on such a wall is short by a share
-that grows with the lean (``benchmarks/RESULTS.md``, "why the bell-shaped cistern misses": 4-5 % at
-45°), and the slice's walls come out inside the true ones.
+that grows with the lean (about 4.6 % at 40–50° on the bell, ``benchmarks/RESULTS.md``, "2026-12-05
+(session 2)"), and the slice's walls come out inside the true ones.
 
 If the segmented echo forms at the elevation ``β`` off the axis towards the lean, a share of the half
 width of the vertical beam (``detection_share``: the beam pattern scales with its width),
