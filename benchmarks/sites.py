@@ -35,6 +35,9 @@ record's plugins (the defaults unless the record names others, or ``--localizer`
   proposes every pair within reach would ask); any it reports converged is a match to be refused;
 * silent wrong sites: sites whose status is ``ok`` with a placed scan more than 0.25 m off after
   alignment;
+* joins of groups (``Poses.group_links``, the fits of groups as wholes): whether each join's 95 %
+  half-width (``group_link_ci95_m`` of ``result.json``) holds the true position of its two stations
+  relative to each other, after the rigid alignment of the placed scans (``--details`` and the table);
 * the whole-site time.
 
 Pairs of scans at different depth levels (depths more than ``LEVEL_TOLERANCE_M`` apart, the mapper's
@@ -84,7 +87,8 @@ RANDOM_KEYS = ("sites", "scans", "placed", "pairs_ge50", "pairs_ge50_ok", "far_p
 
 from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E402
 from cistern_archive.catalog.models import StageChoice  # noqa: E402
-from cistern_archive.evaluation import in_compass_frame, position_errors as aligned_errors  # noqa: E402
+from cistern_archive.evaluation import align_rigid_2d, in_compass_frame, position_errors as aligned_errors  # noqa: E402
+from cistern_archive.pipeline.intervals import Z95  # noqa: E402
 from cistern_archive.evaluation import reference_frame_errors, strict_json, wilson_interval  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site, match_pair, record_ties, resolve_stages  # noqa: E402
@@ -302,6 +306,7 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "false_convergences_no_overlap": sum(1 for p in false_conv if p["overlap"] == 0.0),
         "worst_false_convergence_m": max((p["error_m"] for p in false_conv), default=float("nan")),
         "far_pairs": len(far),
+        "group_links": join_errors(poses, truth),
         "far_pairs_converged": sum(p["converged"] for p in far),
         "far_pairs_converged_errors_m": [p["error_m"] for p in far if p["converged"]],
         "cross_level_pairs": len(cross_level),
@@ -310,6 +315,21 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "site_seconds": seconds,
         "unplaced_reasons": [r for r in (poses.reasons if poses is not None else ()) if r][:3],
     }
+
+
+def join_errors(poses, truth: SiteTruth) -> list[dict]:
+    """Each join of groups (:attr:`~cistern_archive.core.poses.Poses.group_links`): its stations, how far
+    the second lies from where it belongs relative to the first after the rigid alignment of the placed
+    scans onto the truth, and the join's 95 % half-width (the site's ``group_link_ci95_m``)."""
+    if poses is None or not poses.group_links:
+        return []
+    placed = np.asarray(poses.placed)
+    rotation, shift = align_rigid_2d(np.asarray(poses.xy_m)[placed], truth.xy[placed])
+    aligned = np.asarray(poses.xy_m) @ rotation.T + shift
+    stations = [s.station for s in truth.scans]
+    return [{"stations": [stations[i], stations[j]], "ci95_m": Z95 * sigma,
+             "error_m": float(np.hypot(*((aligned[j] - aligned[i]) - (truth.xy[j] - truth.xy[i]))))}
+            for (i, j), sigma in zip(poses.group_links, poses.group_link_sigma_m)]
 
 
 def right(pair: dict) -> bool:
@@ -329,7 +349,7 @@ def failed_row(record, build, seconds: float) -> dict:
     row.update(site=record.id, status=build.result.status, failure=build.result.error, scans=len(record.scans),
                aligned_errors_m=[], pairs_ge50_rejected_correct=0, silent_wrong=False, pairs_ge50_rejected_reasons=[],
                far_pairs_converged_errors_m=[], site_seconds=seconds, unplaced_reasons=[build.result.error or ""],
-               break_pairs=[])
+               break_pairs=[], group_links=[])
     return row
 
 
@@ -374,12 +394,15 @@ def random_summary(rows: list[dict]) -> dict:
         "pairs_wall50_ok": sum(r["pairs_wall50_ok"] for r in rows),
         "pairs_ge50_rejected": sum(len(r["pairs_ge50_rejected_reasons"]) for r in rows),
         "pairs_ge50_rejected_correct": sum(r["pairs_ge50_rejected_correct"] for r in rows),
+        "joins": sum(len(r["group_links"]) for r in rows),
+        "joins_within_ci95": sum(j["error_m"] <= j["ci95_m"] for r in rows for j in r["group_links"]),
     }
 
 
 RATES = (("scans placed", "placed", "scans"), ("pairs >=50% within 0.10 m", "pairs_ge50_ok", "pairs_ge50"),
          ("pairs sharing >=50% of their wall within 0.10 m", "pairs_wall50_ok", "pairs_wall50"),
-         ("far pairs converged", "far_pairs_converged", "far_pairs"), ("silent wrong sites", "silent_wrong_sites", "sites"))
+         ("far pairs converged", "far_pairs_converged", "far_pairs"), ("silent wrong sites", "silent_wrong_sites", "sites"),
+         ("joins within their 95 % interval", "joins_within_ci95", "joins"))
 
 
 def rates(summary: dict) -> dict:
@@ -492,6 +515,8 @@ def random_main(args) -> int:
     print(f"sites with a placed scan more than {WRONG_SCAN_M:.2f} m off after alignment, whatever their status: "
           f"{everything['wrong_sites']} ({everything['wrong_scans']} scans; reported ok: "
           f"{everything['silent_wrong_sites']})")
+    print(f"joins of groups whose 95 % interval holds the truth: {everything['joins_within_ci95']} of "
+          f"{everything['joins']}")
     print(f"pairs with >=50% overlap rejected: {everything['pairs_ge50_rejected']}, of which "
           f"{everything['pairs_ge50_rejected_correct']} with an estimate within 0.10 m")
     failed = [r["site"] for r in rows if r["status"] == "failed"]

@@ -236,3 +236,30 @@ def test_sites_benchmark_refuses_generator_settings_it_cannot_draw_from():
                               "--generator", settings], capture_output=True, text=True, timeout=120)
         assert out.returncode == 2, out.stderr
         assert cause in out.stderr and "Traceback" not in out.stderr, out.stderr
+
+
+def test_sites_benchmark_scores_a_join_against_its_interval():
+    """``join_errors``: a join's stations, how far the second lies from where it belongs relative to the
+    first after the rigid alignment, and its 95 % half-width; a join 0.2 m off with a sigma of 0.05 m
+    lies outside its interval."""
+    from types import SimpleNamespace
+
+    from cistern_archive.core.poses import Poses
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from sites import join_errors
+
+    truth_xy = np.array([[0.0, 0.0], [2.0, 0.0], [6.0, 0.0], [8.0, 1.0]])
+    estimated = truth_xy.copy()
+    estimated[2:] += [0.2, 0.0]  # the second group, joined at (1, 2), laid 0.2 m along the tunnel
+    turn = math.radians(30.0)
+    rotation = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    poses = Poses(xy_m=estimated @ rotation.T + [3.0, -1.0], yaw_rad=np.zeros(4), placed=np.ones(4, bool),
+                  reasons=("",) * 4, reference=0, covariance=np.tile(np.eye(3), (4, 1, 1)),
+                  group_links=((1, 2),), group_link_sigma_m=(0.05,))
+    truth = SimpleNamespace(xy=truth_xy, scans=[SimpleNamespace(station=s) for s in ("a1", "a2", "b1", "b2")])
+    (join,) = join_errors(poses, truth)
+    assert join["stations"] == ["a2", "b1"]
+    assert join["error_m"] == pytest.approx(0.2, abs=0.005)  # the alignment turns the whole a little
+    assert join["ci95_m"] == pytest.approx(1.96 * 0.05, abs=1e-3) and join["error_m"] > join["ci95_m"]
+    assert join_errors(None, truth) == []

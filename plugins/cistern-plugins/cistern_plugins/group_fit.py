@@ -61,16 +61,6 @@ MAX_SIGMA = 5.0
 """The widest standard deviation a fit's covariance takes along any direction, in metres for a
 translation and degrees for a turn (the score's curvature is floored there, so that a direction the
 score cannot tell apart keeps a finite, wide sigma)."""
-MODEL_SIGMA_M = 0.08
-"""Standard deviation (m) of a fit's translation that its score cannot show, added in every direction: the
-walls each group saw of the other's chamber through a tunnel's mouth lie where the beams' width and the
-mouth's edges put them, not quite where they stand (a beam grazing a tunnel's wall hears it 0.2–0.3 m
-short). Calibrated on the random multi-chamber cisterns of
-the tuning seeds (``benchmarks/sites.py --random 40``, seeds 2, 4–10, and seeds 2, 4–6 with tunnels of
-2–4 m surveyed every 1.5 m): of 144 joins by a fit, the 95 % half-widths from the score alone held the
-true relative position of the two joined stations for 85 %, for 57 % of those along the long tunnels
-(joins 0.1–0.3 m off with a sigma of 0.02–0.04 m); with this sigma added, 96 % and 89 % — the smallest
-value, in steps of 5 mm, that reaches 95 % over all of them (RESULTS.md, "2026-12-05 (session 3)")."""
 POLISH_TOLERANCE = 1.0
 """The point-to-line polish is kept unless it loses more than this (cells of wall) of the score."""
 
@@ -278,7 +268,6 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
         pose, score = polished, polished_score
     covariance = score_covariance(fine, pose)
     covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, peaks[0][1])
-    covariance[:2, :2] += MODEL_SIGMA_M**2 * np.eye(2)
     return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
                     best_coarse=best_coarse, covariance=covariance)
 

@@ -74,8 +74,7 @@ builds a graph over the whole site instead, in three steps.
    fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
    chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest accepted fit joins first, until
    none is left. Its edge carries the covariance of the fit's score, wide along a tunnel that both
-   groups see end to end, plus the fit's model sigma (:data:`~cistern_plugins.group_fit.MODEL_SIGMA_M`).
-   Every edge left over is checked against the merged geometry as before.
+   groups see end to end. Every edge left over is checked against the merged geometry as before.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction
