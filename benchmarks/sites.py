@@ -87,9 +87,9 @@ RANDOM_KEYS = ("sites", "scans", "placed", "pairs_ge50", "pairs_ge50_ok", "far_p
 
 from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E402
 from cistern_archive.catalog.models import StageChoice  # noqa: E402
-from cistern_archive.evaluation import align_rigid_2d, in_compass_frame, position_errors as aligned_errors  # noqa: E402
-from cistern_archive.pipeline.intervals import Z95  # noqa: E402
+from cistern_archive.evaluation import aligned_positions, in_compass_frame, position_errors as aligned_errors  # noqa: E402
 from cistern_archive.evaluation import reference_frame_errors, strict_json, wilson_interval  # noqa: E402
+from cistern_archive.pipeline.intervals import Z95  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site, match_pair, record_ties, resolve_stages  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction, shared_wall_fraction  # noqa: E402
@@ -291,6 +291,7 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "median_aligned_error_m": float(np.median(aligned)) if len(aligned) else float("nan"),
         "max_aligned_error_m": max_aligned,
         "silent_wrong": bool(build.result.status == "ok" and max_aligned > WRONG_SCAN_M),
+        "group_links": join_errors(poses, truth),
         "wrong_scans": int(sum(e > WRONG_SCAN_M for e in aligned)),
         "eligible_pairs": len(eligible),
         "eligible_pairs_ok": len(good),
@@ -306,7 +307,6 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
         "false_convergences_no_overlap": sum(1 for p in false_conv if p["overlap"] == 0.0),
         "worst_false_convergence_m": max((p["error_m"] for p in false_conv), default=float("nan")),
         "far_pairs": len(far),
-        "group_links": join_errors(poses, truth),
         "far_pairs_converged": sum(p["converged"] for p in far),
         "far_pairs_converged_errors_m": [p["error_m"] for p in far if p["converged"]],
         "cross_level_pairs": len(cross_level),
@@ -323,9 +323,8 @@ def join_errors(poses, truth: SiteTruth) -> list[dict]:
     scans onto the truth, and the join's 95 % half-width (the site's ``group_link_ci95_m``)."""
     if poses is None or not poses.group_links:
         return []
-    placed = np.asarray(poses.placed)
-    rotation, shift = align_rigid_2d(np.asarray(poses.xy_m)[placed], truth.xy[placed])
-    aligned = np.asarray(poses.xy_m) @ rotation.T + shift
+    placed = np.flatnonzero(poses.placed)
+    aligned = dict(zip(placed, aligned_positions(np.asarray(poses.xy_m)[placed], truth.xy[placed])))
     stations = [s.station for s in truth.scans]
     return [{"stations": [stations[i], stations[j]], "ci95_m": Z95 * sigma,
              "error_m": float(np.hypot(*((aligned[j] - aligned[i]) - (truth.xy[j] - truth.xy[i]))))}

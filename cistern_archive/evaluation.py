@@ -50,20 +50,26 @@ def scan_position_errors(result: SiteResult) -> dict[int, float]:
     return {k: float(e) for k, e in zip(scans, errors)}
 
 
+def aligned_positions(estimated_xy_m: np.ndarray, true_xy_m: np.ndarray) -> np.ndarray:
+    """The estimated positions (N, 2) moved by the rigid alignment of all of them onto the true ones
+    (:func:`align_rigid_2d`)."""
+    estimated = np.asarray(estimated_xy_m, dtype=float)
+    rotation, translation = align_rigid_2d(estimated, true_xy_m)
+    return estimated @ rotation.T + translation
+
+
 def aligned_errors(estimated_xy_m: np.ndarray, true_xy_m: np.ndarray) -> np.ndarray:
     """Distance (m) of each estimated position from its true one after the rigid alignment of all of
-    them onto the truth (:func:`align_rigid_2d`); empty when there are fewer than two.
+    them onto the truth (:func:`aligned_positions`); empty when there are fewer than two.
 
     Parameters
     ----------
     estimated_xy_m, true_xy_m : ndarray, shape (N, 2)
     """
-    estimated = np.asarray(estimated_xy_m, dtype=float)
     truth = np.asarray(true_xy_m, dtype=float)
-    if len(estimated) < 2:
+    if len(truth) < 2:
         return np.zeros(0)
-    rotation, translation = align_rigid_2d(estimated, truth)
-    return np.linalg.norm(estimated @ rotation.T + translation - truth, axis=1)
+    return np.linalg.norm(aligned_positions(estimated_xy_m, truth) - truth, axis=1)
 
 
 def position_errors(result: SiteResult) -> np.ndarray:

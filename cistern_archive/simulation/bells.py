@@ -24,7 +24,8 @@ LEVEL_STEP_M = 1.0
 """Depth between the levels that define the walls."""
 
 
-def bell_levels(rng: np.random.Generator, vertical: bool = False) -> tuple[list[dict], list[tuple[float, float, float]]]:
+def bell_levels(rng: np.random.Generator, vertical: bool = False
+                ) -> tuple[list[dict], list[tuple[float, float, float]]]:
     """The spec's levels and, per level, ``(depth, semi-major, semi-minor)`` of its ellipse (``vertical``:
     a well of one ellipse, its semi-major axis 1.8-3 m, at every depth)."""
     neck = float(rng.uniform(1.8, 3.0) if vertical else rng.uniform(0.4, 0.8))
