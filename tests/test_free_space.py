@@ -37,6 +37,23 @@ def test_a_point_inside_the_jamb_beams_cone_is_not_free_whatever_the_step(step_d
     assert free.in_free_space(point_at(jamb_bearing + 4.0, 2.0), margin_m=0.1)[0]
 
 
+def test_a_beam_that_heard_nothing_gains_no_water_from_its_neighbours():
+    """A beam with no echo (a far wall met obliquely, too faint to answer) between a beam that heard a
+    wall 5 m off and beams that heard nothing: its neighbour's cone covers its bearing, but what its own
+    axis did not hear, the cone's edge did not hear either, so a point 4 m off on its bearing is not
+    free; on the neighbour's own bearing it is."""
+    for step_deg in (0.9, 1.8):
+        bearings = np.radians(np.arange(0.0, 360.0, step_deg))
+        ranges = np.full(len(bearings), np.nan)
+        ranges[:40] = 5.0
+        scan = RangeScan(bearings_rad=bearings, ranges_m=ranges, yaw_rad=0.0, depth_m=1.0, max_range_m=6.0,
+                         bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+        free = FreeSpace(scan)
+        assert free.in_free_space(point_at(39 * step_deg, 4.0), margin_m=0.1)[0]
+        assert not free.in_free_space(point_at(40 * step_deg, 4.0), margin_m=0.1)[0]
+        assert not free.violations(point_at(40 * step_deg, 4.0), margin_m=0.1)[1]
+
+
 def test_the_reach_is_the_half_cone_unless_the_steps_are_wider():
     """At the simulator's 0.9° steps the reach is the 1.5° half cone, as it always was (the calibrated
     verification's features are unchanged); at 1.8° it is one and a half steps, the neighbours and no

@@ -331,8 +331,13 @@ class FreeSpace:
     cone. Without this, correct matches of scans that look through an opening into the next chamber
     put 10–40 % of their wall points in each other's "free" space.
 
-    A beam with no echo says nothing by default. With ``open_range_m`` it saw water out to that range
-    (a wall within the sonar's range would have answered), as an occupancy grid reads it.
+    A beam with no echo says nothing by default, even where a neighbour's cone covers its bearing: what
+    its own axis, the most sensitive part of its lobe, did not hear, the edge of the neighbour's cone
+    did not hear either (a far wall met obliquely answers too faintly), and the neighbour's echo may be
+    a multipath ghost arriving after a direct echo nobody heard. Letting such a beam take its
+    neighbours' water laid a right pair's walls 0.5–1 m "in water" (``benchmarks/RESULTS.md``,
+    "2026-12-05 (session 4)"). With ``open_range_m`` it saw water out to that range (a wall within the
+    sonar's range would have answered), as an occupancy grid reads it.
     """
 
     def __init__(self, scan: RangeScan, *, cone: bool = True, open_range_m: float | None = None):
@@ -344,13 +349,10 @@ class FreeSpace:
             ranges = np.where(np.isfinite(ranges), ranges, open_range_m)
         step = 2 * np.pi / max(len(angles), 1)
         self.tolerance_rad = 1.5 * step
-        half_cone = 0.5 * float(scan.beam_width_rad) if cone else 0.0
-        if half_cone > 0:
-            reach = erosion_reach(self.angles, float(scan.beam_width_rad))
-            covered = _cone_minimum(self.angles, ranges, half_cone)  # a bearing some echo's cone saw
-            ranges = covered if reach <= half_cone else \
-                np.where(np.isfinite(covered), _cone_minimum(self.angles, ranges, reach), np.nan)
-        self.ranges = ranges
+        heard = np.isfinite(ranges)
+        if cone and scan.beam_width_rad > 0:  # bounded by the echoes of the beams whose cones reach it
+            ranges = _cone_minimum(self.angles, ranges, erosion_reach(self.angles, float(scan.beam_width_rad)))
+        self.ranges = np.where(heard, ranges, np.nan)
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -435,9 +437,8 @@ def erosion_reach(angles: np.ndarray, beam_width_rad: float) -> float:
     wide as half the cone or wider (1.8° steps under a 3° beam) the half cone would hold the beam
     alone, although the cones of the beams on either side cover bearings the point may have. The
     reach is then one and a half steps (as :attr:`FreeSpace.tolerance_rad`): the neighbours on either
-    side, not the beams beyond them. The reach only bounds free space: a beam that heard nothing,
-    with no echo within its own half cone, stays silent (its neighbours' cones do not cover its
-    bearing, so their water is not its water).
+    side, not the beams beyond them. The reach only bounds free space: a beam that heard nothing stays
+    silent (:class:`FreeSpace`).
 
     Parameters
     ----------
