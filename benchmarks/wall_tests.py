@@ -15,7 +15,9 @@ and no stretch of wall longer than ``max_violation_run_m`` may lie in the water 
   within 0.3 m of the truth) or wrong (a pair more than 1 m off), with its longest stretch, how many of
   its pairs lay a stretch over the limit (and the second longest), its back-to-back count
   (:func:`back_to_back`), and how many pairs apart lay a stretch over ``CORROBORATED_RUN_M``
-  (:func:`~cistern_plugins.site_groups.corroborated_runs`). The wall check is observed, not changed: each call is
+  (:func:`~cistern_plugins.site_groups.corroborated_runs`), and the second longest stretch among pairs that
+  share no scan (what :data:`~cistern_plugins.site_groups.CORROBORATED_RUN_M` is set against). The wall
+  check is observed, not changed: each call is
   recorded and passed on.
 
 Usage::
@@ -119,15 +121,16 @@ def one_site(job: tuple[int, int]) -> dict:
                 runs = sorted((p.quality.violation_run_m for p in pairs), reverse=True)
                 over = sum(r > limits.max_violation_run_m for r in runs)
                 corroborated = len(site_groups.corroborated_runs(pairs, site_groups.CORROBORATED_RUN_M))
+                disjoint = site_groups.corroborated_runs(pairs, 0.0)
                 joins.append((max(errors), runs[0], *back_to_back(pairs), over, runs[1] if len(runs) > 1 else 0.0,
-                              corroborated))
+                              corroborated, disjoint[1][0] if len(disjoint) > 1 else 0.0))
         return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins}
 
 
 def summary(rows: list[dict]) -> dict:
     truth = np.array([t for r in rows for t in r["truth"]], dtype=float).reshape(-1, 3)
     matches = np.array([m for r in rows for m in r["matches"]], dtype=float).reshape(-1, 2)
-    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 7)
+    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 8)
     limit = ConvergenceThresholds().max_violation_run_m
     share = truth[:, 2] / np.maximum(truth[:, 1] + truth[:, 2], 1)
     right, wrong = matches[matches[:, 0] <= OK_PAIR_M], matches[matches[:, 0] > WRONG_MATCH_M]
@@ -152,7 +155,10 @@ def summary(rows: list[dict]) -> dict:
                   "right_over_limit": sorted((int(n), round(float(second), 2)) for n, second in right_joins[:, 4:6] if n >= 1),
                   "wrong_over_limit": sorted((int(n), round(float(second), 2)) for n, second in wrong_joins[:, 4:6]),
                   "right_corroborated": sorted(int(n) for n in right_joins[:, 6] if n >= 1),
-                  "wrong_corroborated": sorted(int(n) for n in wrong_joins[:, 6])},
+                  "wrong_corroborated": sorted(int(n) for n in wrong_joins[:, 6]),
+                  "right_second_disjoint_max_m": top(right_joins[:, 7]),
+                  "right_second_disjoint_q99_m": round(float(np.quantile(right_joins[:, 7], 0.99)), 3) if len(right_joins) else None,
+                  "wrong_second_disjoint_m": sorted(round(float(v), 2) for v in wrong_joins[:, 7])},
         "limit_m": limit,
     }
 

@@ -41,7 +41,8 @@ def test_a_beam_that_heard_nothing_gains_no_water_from_its_neighbours():
     """A beam with no echo (a far wall met obliquely, too faint to answer) between a beam that heard a
     wall 5 m off and beams that heard nothing: its neighbour's cone covers its bearing, but what its own
     axis did not hear, the cone's edge did not hear either, so a point 4 m off on its bearing is not
-    free; on the neighbour's own bearing it is."""
+    free; on the neighbour's own bearing it is. The wall in the cone may still hide what lies behind
+    it on that bearing: a point beyond it is not one the sonar could have seen."""
     for step_deg in (0.9, 1.8):
         bearings = np.radians(np.arange(0.0, 360.0, step_deg))
         ranges = np.full(len(bearings), np.nan)
@@ -52,6 +53,8 @@ def test_a_beam_that_heard_nothing_gains_no_water_from_its_neighbours():
         assert free.in_free_space(point_at(39 * step_deg, 4.0), margin_m=0.1)[0]
         assert not free.in_free_space(point_at(40 * step_deg, 4.0), margin_m=0.1)[0]
         assert not free.violations(point_at(40 * step_deg, 4.0), margin_m=0.1)[1]
+        assert not free.visible(point_at(40 * step_deg, 5.5), tolerance_m=0.1)[0]  # behind the wall in its cone
+        assert free.visible(point_at(200.0, 5.5), tolerance_m=0.1)[0]
 
 
 def test_the_reach_is_the_half_cone_unless_the_steps_are_wider():

@@ -336,8 +336,10 @@ class FreeSpace:
     did not hear either (a far wall met obliquely answers too faintly), and the neighbour's echo may be
     a multipath ghost arriving after a direct echo nobody heard. Letting such a beam take its
     neighbours' water laid a right pair's walls 0.5–1 m "in water" (``benchmarks/RESULTS.md``,
-    "2026-12-05 (session 4)"). With ``open_range_m`` it saw water out to that range (a wall within the
-    sonar's range would have answered), as an occupancy grid reads it.
+    "2026-12-05 (session 4)"). What a neighbour's cone met may still hide what lies behind it on that
+    bearing, so visibility (:meth:`visible`) keeps the cone's bound there. With ``open_range_m`` a beam
+    with no echo saw water out to that range (a wall within the sonar's range would have answered), as
+    an occupancy grid reads it.
     """
 
     def __init__(self, scan: RangeScan, *, cone: bool = True, open_range_m: float | None = None):
@@ -352,7 +354,12 @@ class FreeSpace:
         heard = np.isfinite(ranges)
         if cone and scan.beam_width_rad > 0:  # bounded by the echoes of the beams whose cones reach it
             ranges = _cone_minimum(self.angles, ranges, erosion_reach(self.angles, float(scan.beam_width_rad)))
-        self.ranges = np.where(heard, ranges, np.nan)
+        self.ranges = ranges
+        """On each bearing, the nearest echo of the beams whose cones reach it: what may hide a point
+        (:meth:`visible`)."""
+        self.free_ranges = np.where(heard, ranges, np.nan)
+        """The same on the bearings of beams that heard an echo, unknown on the others: how far the
+        sonar saw water (:meth:`in_free_space`, :meth:`violation_mask`)."""
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -399,7 +406,7 @@ class FreeSpace:
         chamber the other scan's sonar cannot)."""
         if len(self.angles) == 0 or len(points) == 0:
             return np.ones(len(points), dtype=bool)
-        _, checked, r, r_echo = self._nearest(points)
+        _, checked, r, r_echo = self._nearest(points, self.ranges)
         return ~(checked & (r > r_echo + tolerance_m))
 
     def in_free_space(self, points: np.ndarray, margin_m: float) -> np.ndarray:
@@ -410,12 +417,12 @@ class FreeSpace:
         if len(self.angles) == 0 or len(points) == 0:
             empty = np.zeros(len(points), dtype=bool)
             return empty, empty
-        _, checked, r, r_echo = self._nearest(points)
+        _, checked, r, r_echo = self._nearest(points, self.free_ranges)
         return checked & (r < r_echo - margin_m), checked
 
-    def _nearest(self, points: np.ndarray):
-        """For every point: the nearest beam, whether it is within the bearing tolerance and has an echo,
-        the point's range and that beam's (cone-eroded) echo range."""
+    def _nearest(self, points: np.ndarray, ranges: np.ndarray):
+        """For every point: the nearest beam, whether it is within the bearing tolerance and ``ranges``
+        holds a range on it, the point's range and that range."""
         a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         k = np.searchsorted(self.angles, a) % len(self.angles)
         km = (k - 1) % len(self.angles)
@@ -423,7 +430,7 @@ class FreeSpace:
         dkm = np.abs(wrap_angle(self.angles[km] - a))
         nearest = np.where(dk <= dkm, k, km)
         gap = np.minimum(dk, dkm)
-        r_echo = self.ranges[nearest]
+        r_echo = ranges[nearest]
         checked = (gap <= self.tolerance_rad) & np.isfinite(r_echo)
         r = np.hypot(points[:, 0], points[:, 1])
         return nearest, checked, r, r_echo
@@ -538,9 +545,10 @@ def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float, viewer: np.
 
     Noise, a pose a few centimetres off and the corners of openings put scattered points of a right
     match into the other scan's free space; a wrong one lays a whole stretch of wall across the water
-    another sonar saw — one chamber's opening onto the other's solid wall. On 48 random multi-chamber
-    cisterns (``benchmarks/wall_tests.py``) no pair at its true pose and no right join had a stretch
-    longer than 0.51 m; a wrong join that set a chamber's opening on a solid wall had 1.76 m.
+    another sonar saw — one chamber's opening onto the other's solid wall. On 240 random multi-chamber
+    cisterns (``benchmarks/wall_tests.py --random 40``, seeds 2, 4–8) no pair at its true pose had a
+    stretch longer than 0.29 m and no right join one longer than 0.31 m; a wrong join that set a
+    chamber's opening on a solid wall had 1.76 m.
 
     With the position of the sonar whose water the points fall in (``viewer``, in the points' frame), a
     stretch that sonar would see edge-on — the chord between its ends within ``GRAZING_DEG`` of the ray

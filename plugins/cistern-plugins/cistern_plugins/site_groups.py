@@ -168,21 +168,23 @@ TWO_WAY_PAIRS = 5
 on those seeds, and 2.2–2.4 % on the same sites drawn with 20 % multipath echoes."""
 
 
-CORROBORATED_RUN_M = 0.3
+CORROBORATED_RUN_M = 0.22
 """A stretch of wall in a row across another scan's water that counts towards a corroborated conflict
 (:func:`corroborated_runs`). One chamber's tunnel mouth (0.8–1.2 m wide) laid onto a look-alike's solid
 wall shows, from each scan that looks through the mouth, as a stretch shorter than the opening (the
 beams' cones eat its edges, a slanting view sees part of it): under the single-pair limit
 ``max_violation_run_m`` (0.75 m), which must stay above what one pair's noise gives, but seen from several
-stations apart."""
+stations apart. Set between what right and wrong joins show from their second pair sharing no scan
+with the first (``benchmarks/wall_tests.py --random 40 --seeds 2,4`` and ``--seeds 5,6,7,8``: 5,819
+judgements of right joins, at most 0.18 m; 40 of wrong ones, 0 or 0.27–0.66 m)."""
 CORROBORATED_PAIRS = 2
 """Pairs of a join, no two sharing a scan, each laying more than :data:`CORROBORATED_RUN_M` of wall in a
 row across the other's water, from which the join is refused. Over the joins judged on 40 random
-cisterns of each of seeds 2 and 4 (``benchmarks/wall_tests.py --random 40 --seeds 2,4``: 1,965
-judgements of right joins, 26 of wrong ones), no right join had two such pairs (11 had one); 17 of the
-wrong ones had two to four, among them a middle chamber laid onto the first, 8.5 m off, that every other
-test let through (0.37–0.54 m). At their true poses, the 4,482 pairs of those sites within range lay at
-most 0.51 m, and 99.9 % of them at most 0.27 m."""
+cisterns of each of seeds 2, 4–8 (the same runs), no right join had two such pairs (17 had one); 30 of
+the 40 judgements of wrong ones had two to four, among them a middle chamber laid onto the first, 8.5 m
+off, that every other test let through. At their true poses, the 14,038 pairs of those sites within
+range lay at most 0.29 m, and 99.9 % of them at most 0.22 m (``benchmarks/RESULTS.md``,
+"2026-12-05 (session 4)")."""
 
 
 def corroborated_runs(pairs: Sequence[JoinPair], min_run_m: float) -> list[tuple[float, int, int]]:
