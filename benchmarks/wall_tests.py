@@ -120,10 +120,10 @@ def one_site(job: tuple[int, int]) -> dict:
                 errors = [truth.displacement_error(p.a, p.b, p.rel.x(), p.rel.y()) for p in pairs]
                 runs = sorted((p.quality.violation_run_m for p in pairs), reverse=True)
                 over = sum(r > limits.max_violation_run_m for r in runs)
-                corroborated = len(site_groups.corroborated_runs(pairs, site_groups.CORROBORATED_RUN_M))
-                disjoint = site_groups.corroborated_runs(pairs, 0.0)
+                disjoint = [run for run, _, _ in site_groups.corroborated_runs(pairs, 0.0)]  # longest first
+                corroborated = sum(run > site_groups.CORROBORATED_RUN_M for run in disjoint)
                 joins.append((max(errors), runs[0], *back_to_back(pairs), over, runs[1] if len(runs) > 1 else 0.0,
-                              corroborated, disjoint[1][0] if len(disjoint) > 1 else 0.0))
+                              corroborated, disjoint[1] if len(disjoint) > 1 else 0.0))
         return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins}
 
 

@@ -547,7 +547,7 @@ def longest_run_m(points: np.ndarray, bad: np.ndarray, gap_m: float, viewer: np.
     match into the other scan's free space; a wrong one lays a whole stretch of wall across the water
     another sonar saw — one chamber's opening onto the other's solid wall. On 240 random multi-chamber
     cisterns (``benchmarks/wall_tests.py --random 40``, seeds 2, 4–8) no pair at its true pose had a
-    stretch longer than 0.29 m and no right join one longer than 0.31 m; a wrong join that set a
+    stretch longer than 0.29 m and no right join one longer than 0.30 m; a wrong join that set a
     chamber's opening on a solid wall had 1.76 m.
 
     With the position of the sonar whose water the points fall in (``viewer``, in the points' frame), a
