@@ -107,3 +107,28 @@ def test_a_reference_pyramid_is_built_once_and_changes_no_result():
     moved = replace(pair.reference, ranges_m=pair.reference.ranges_m + 0.01)  # other echoes, another pyramid
     CorrelativeMatcher().match(moved, pair.moving, CorrelativeParams(), rng=rng)
     assert len(PYRAMIDS.items) == 2
+
+
+def _compass_turned(correction_deg: float):
+    """A well-posed pair whose moving compass is turned so that its true heading correction is
+    ``correction_deg``: (pair, moving scan)."""
+    import dataclasses
+
+    pair = simulated_pair(np.random.default_rng(11), overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0),
+                          noise_m=0.02)
+    turn = pair.dyaw_rad - math.radians(correction_deg)
+    return pair, dataclasses.replace(pair.moving, yaw_rad=pair.moving.yaw_rad + turn)
+
+
+def test_a_heading_beyond_the_yaw_window_is_searched_for_not_clamped_to_its_edge():
+    """With the compass 25° off (beyond the ±12° window), the best pose of the first search lies on the
+    window's edge: the search is widened and finds the heading; capped at 12° it refuses instead of
+    converging on the edge."""
+    pair, moving = _compass_turned(25.0)
+    rng = np.random.default_rng(0)
+    res = CorrelativeMatcher().match(pair.reference, moving, CorrelativeParams(), rng=rng)
+    assert res.converged, res.reason
+    assert abs(math.degrees(res.dyaw_rad) - 25.0) < 2.0
+    np.testing.assert_allclose([res.dx_m, res.dy_m], [pair.dx_m, pair.dy_m], atol=0.1)
+    capped = CorrelativeMatcher().match(pair.reference, moving, CorrelativeParams(max_search_deg=12.0), rng=rng)
+    assert not capped.converged and "edge of the ±12° search" in capped.reason

@@ -14,7 +14,15 @@ pruning threshold are dropped; the threshold is the best exact score found so fa
 from the best node) times ``ambiguity_ratio``, so every pose within that ratio of the optimum survives
 to the finest level and the runner-up peak is known exactly.
 
-Convergence is honest on three counts: the best score reaches ``min_score``; no pose farther than
+A best pose at the first or last yaw of the window is no peak: the optimum may lie beyond it (a compass
+thrown off by iron fittings, or a pair of scans whose compasses disagree more than a Micron-class
+compass's noise). A search without a guess is then repeated with the yaw window doubled, up to
+``max_search_deg``, and refused if its best still lies on the edge. A search around a guess keeps its
+window (``guess_search_deg``): the guess's heading comes from a solution of the site, and the refinement
+below may still carry a best pose on the edge to the optimum just beyond it.
+
+Convergence is honest on four counts: the best score reaches ``min_score``; the best heading lies inside
+the yaw window (above); no pose farther than
 ``ambiguity_distance_m`` from the best (at any yaw) scores within ``ambiguity_ratio`` of it (Olson's
 ambiguity test). The reason names which kind of ambiguity it is: a second peak, separated from the
 best by a valley (on the straight path between them the score, maximised over nearby yaws, drops
@@ -67,6 +75,9 @@ class CorrelativeParams(ConvergenceParams):
     search_deg: float = Field(12.0, ge=0, le=180, description="yaw window of a global search: six times a "
                               "Micron-class compass's 2° noise")
     guess_search_deg: float = Field(6.0, ge=0, le=180, description="yaw window around a guess's heading")
+    max_search_deg: float = Field(48.0, ge=0, le=180, description="a search without a guess whose best "
+                                  "heading lies on the edge of its yaw window is repeated with the window "
+                                  "doubled, up to this")
     levels: int = Field(5, ge=1, le=8)
     min_score: float = Field(0.08, ge=0, le=1)
     ambiguity_ratio: float = Field(0.9, gt=0, le=1)
@@ -204,6 +215,26 @@ def branch_and_bound(pyr: LikelihoodPyramid, points: np.ndarray, angles: np.ndar
     return nodes[keep][order], bounds[keep][order]
 
 
+def yaw_search(pyr: LikelihoodPyramid, points: np.ndarray, window_cells: int, half_deg: float, p: CorrelativeParams,
+               *, widen: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, bool]:
+    """:func:`branch_and_bound` over ``±half_deg`` of yaw; with ``widen``, again over a window twice as wide
+    (up to ``max_search_deg``) while the best lies on the window's edge (module docstring). Returns the
+    nodes and scores, the yaws searched, the last half-width and whether the best still lies on its edge."""
+    while True:
+        angles = _angles(points, half_deg, p.resolution_m)
+        nodes, scores = branch_and_bound(pyr, points, angles, window_cells, p.ambiguity_ratio,
+                                         floor=p.ambiguity_ratio * p.min_score)
+        edge = len(nodes) > 0 and at_yaw_edge(nodes[0], angles)
+        if not (edge and widen and half_deg < p.max_search_deg):
+            return nodes, scores, angles, half_deg, edge
+        half_deg = min(2.0 * half_deg, p.max_search_deg)
+
+
+def at_yaw_edge(node: np.ndarray, angles: np.ndarray) -> bool:
+    """Whether a search node lies at the first or last yaw of a window of several."""
+    return len(angles) > 1 and int(node[2]) in (0, len(angles) - 1)
+
+
 def _threshold(best: float, ratio: float) -> float:
     """Pruning threshold: ``ratio`` of the best score, measured below it (scores may be negative)."""
     return best - (1.0 - ratio) * abs(best)
@@ -246,10 +277,9 @@ class CorrelativeMatcher(GuidedMatcher):
         half_m = search_half_width(reference, moving, p) if guess is None else guess.radius_m
         src = transform(thinned(scan_points(moving), 2 * p.resolution_m), centre)
         pyr = reference_pyramid(reference, model, p, half_m + 4 * p.sigma_m)
-        angles = _angles(src, p.search_deg if guess is None else p.guess_search_deg, p.resolution_m)
         window = int(math.ceil(half_m / p.resolution_m))
-        nodes, scores = branch_and_bound(pyr, src, angles, window, p.ambiguity_ratio,
-                                         floor=p.ambiguity_ratio * p.min_score)
+        half_deg = p.search_deg if guess is None else p.guess_search_deg
+        nodes, scores, angles, half_deg, edge = yaw_search(pyr, src, window, half_deg, p, widen=guess is None)
         if len(nodes) == 0:
             reason = f"no pose in the window scores {p.ambiguity_ratio * p.min_score:.2f} or more"
             return MatchResult.no_estimate(reason, seconds=time.perf_counter() - start)
@@ -258,6 +288,9 @@ class CorrelativeMatcher(GuidedMatcher):
         reason = ""
         if scores[0] < p.min_score:
             reason = f"best correlation score {scores[0]:.2f} < {p.min_score:.2f}"
+        elif edge and guess is None:
+            reason = (f"the best heading lies on the edge of the ±{half_deg:.0f}° search: the optimum may lie "
+                      "beyond it")
         rival = _rival(nodes, scores, angles, p, pyr, src)
         ambiguous = not reason and rival is not None
         if ambiguous:
