@@ -1,6 +1,7 @@
 """Correlative matcher: exact branch and bound, large offsets without a guess, honest flag."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -89,7 +90,6 @@ def test_an_ambiguous_match_reports_its_rival_places_and_a_unique_one_none():
 
 
 def test_a_reference_pyramid_is_built_once_and_changes_no_result():
-    from dataclasses import replace
 
     from cistern_plugins.correlative import PYRAMIDS
 
@@ -112,12 +112,10 @@ def test_a_reference_pyramid_is_built_once_and_changes_no_result():
 def _compass_turned(correction_deg: float):
     """A well-posed pair whose moving compass is turned so that its true heading correction is
     ``correction_deg``: (pair, moving scan)."""
-    import dataclasses
-
     pair = simulated_pair(np.random.default_rng(11), overlap_range=(0.6, 1.0), offset_range_m=(1.5, 2.0),
                           noise_m=0.02)
     turn = pair.dyaw_rad - math.radians(correction_deg)
-    return pair, dataclasses.replace(pair.moving, yaw_rad=pair.moving.yaw_rad + turn)
+    return pair, replace(pair.moving, yaw_rad=pair.moving.yaw_rad + turn)
 
 
 def test_a_heading_beyond_the_yaw_window_is_searched_for_not_clamped_to_its_edge():
