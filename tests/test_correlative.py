@@ -130,3 +130,20 @@ def test_a_heading_beyond_the_yaw_window_is_searched_for_not_clamped_to_its_edge
     np.testing.assert_allclose([res.dx_m, res.dy_m], [pair.dx_m, pair.dy_m], atol=0.1)
     capped = CorrelativeMatcher().match(pair.reference, moving, CorrelativeParams(max_search_deg=12.0), rng=rng)
     assert not capped.converged and "edge of the ±12° search" in capped.reason
+
+
+def test_a_refinement_that_turns_the_heading_out_of_the_searched_window_is_refused():
+    """Around a guess whose heading is 10° off, the ±6° search's best lies on its edge and the refinement
+    turns it on, out of the window the search covered: a pose the search never scored, refused. A guess 2°
+    off is matched."""
+    from cistern_archive.pipeline.contracts import MatchGuess
+
+    pair, moving = _compass_turned(0.0)
+    rng = np.random.default_rng(0)
+    far = MatchGuess(pair.dx_m, pair.dy_m, math.radians(10.0), 0.5)
+    res = CorrelativeMatcher().match(pair.reference, moving, CorrelativeParams(), rng=rng, guess=far)
+    assert not res.converged and "beyond its ±6° window" in res.reason
+    near = MatchGuess(pair.dx_m, pair.dy_m, math.radians(2.0), 0.5)
+    ok = CorrelativeMatcher().match(pair.reference, moving, CorrelativeParams(), rng=rng, guess=near)
+    assert ok.converged, ok.reason
+    assert abs(math.degrees(ok.dyaw_rad)) < 2.0
