@@ -90,7 +90,6 @@ def test_an_ambiguous_match_reports_its_rival_places_and_a_unique_one_none():
 
 
 def test_a_reference_pyramid_is_built_once_and_changes_no_result():
-
     from cistern_plugins.correlative import PYRAMIDS
 
     rng = np.random.default_rng(11)

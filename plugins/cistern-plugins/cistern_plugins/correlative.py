@@ -221,13 +221,14 @@ def yaw_search(pyr: LikelihoodPyramid, points: np.ndarray, window_cells: int, ha
                *, widen: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, bool]:
     """:func:`branch_and_bound` over ``±half_deg`` of yaw; with ``widen``, again over a window twice as wide
     (up to ``max_search_deg``) while the best lies on the window's edge (module docstring). Returns the
-    nodes and scores, the yaws searched, the last half-width and whether the best still lies on its edge."""
+    nodes and scores, the yaws searched, the last half-width and, with ``widen``, whether the best still
+    lies on its edge (without, a search around a guess keeps its window whatever its best)."""
     while True:
         angles = _angles(points, half_deg, p.resolution_m)
         nodes, scores = branch_and_bound(pyr, points, angles, window_cells, p.ambiguity_ratio,
                                          floor=p.ambiguity_ratio * p.min_score)
-        edge = len(nodes) > 0 and at_yaw_edge(nodes[0], angles)
-        if not (edge and widen and half_deg < p.max_search_deg):
+        edge = widen and len(nodes) > 0 and at_yaw_edge(nodes[0], angles)
+        if not (edge and half_deg < p.max_search_deg):
             return nodes, scores, angles, half_deg, edge
         half_deg = min(2.0 * half_deg, p.max_search_deg)
 
@@ -295,7 +296,7 @@ class CorrelativeMatcher(GuidedMatcher):
         reason = ""
         if scores[0] < p.min_score:
             reason = f"best correlation score {scores[0]:.2f} < {p.min_score:.2f}"
-        elif edge and guess is None:
+        elif edge:
             reason = (f"the best heading lies on the edge of the ±{half_deg:.0f}° search: the optimum may lie "
                       "beyond it")
         rival = _rival(nodes, scores, angles, p, pyr, src)
