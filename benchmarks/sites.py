@@ -40,10 +40,12 @@ record's plugins (the defaults unless the record names others, or ``--localizer`
   relative to each other, after the rigid alignment of the placed scans (``--details`` and the table);
 * the whole-site time.
 
-Pairs of scans at different depth levels (depths more than ``LEVEL_TOLERANCE_M`` apart, the mapper's
-default slice tolerance) see different wall outlines in a site whose walls change with depth; their
-overlap is undefined (``nan``), so they count neither as pairs with ≥ 50 % overlap nor as pairs without
-overlap. They are reported apart (``cross_level_pairs``, ``cross_level_converged``); the localizer joins
+Pairs of scans at different depth levels (where the true walls at their two depths lie more than
+``WALL_CHANGE_M`` apart; without a simulation spec, depths more than ``LEVEL_TOLERANCE_M`` apart, the
+mapper's default slice tolerance) see different wall outlines in a site whose walls change with depth;
+their overlap is undefined (``nan``), so they count neither as pairs with ≥ 50 % overlap nor as pairs
+without overlap. Stations at different depths of a site whose walls are the same at every depth are
+pairs like any other. They are reported apart (``cross_level_pairs``, ``cross_level_converged``); the localizer joins
 depth levels through the record's vertical ties (``ScanRef.below``).
 
 With ``--random`` the last line of ``--json`` is exactly ``{"sites", "scans", "placed", "pairs_ge50",
@@ -79,6 +81,7 @@ from scipy.sparse.csgraph import connected_components
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVEL_TOLERANCE_M = 0.25
+WALL_CHANGE_M = 0.05
 OK_PAIR_M = 0.10
 WRONG_SCAN_M = 0.25
 FAR_OVERLAP = 0.20
@@ -110,6 +113,15 @@ def with_stage(loaded, stage: str, name: str | None = None, params: dict | None 
     return replace(loaded, record=loaded.record.model_copy(update={"pipeline": pipeline}))
 
 
+def walls_differ(levels, depth_a: float, depth_b: float) -> bool:
+    """Whether the site's true walls at two depths differ by more than ``WALL_CHANGE_M`` (vertex by vertex
+    where both are interpolated from rings of one shape, else whenever they are not the same rings)."""
+    a, b = interpolate_slice(levels, depth_a), interpolate_slice(levels, depth_b)
+    if len(a) != len(b) or any(np.shape(ra) != np.shape(rb) for ra, rb in zip(a, b)):
+        return True
+    return any(np.hypot(*(np.asarray(ra) - np.asarray(rb)).T).max(initial=0.0) > WALL_CHANGE_M for ra, rb in zip(a, b))
+
+
 class SiteTruth:
     """The truth of one built site: true positions, compass errors, and pair overlaps (cached)."""
 
@@ -124,7 +136,13 @@ class SiteTruth:
         self._measures: dict[tuple[str, int, int], float] = {}
 
     def cross_level(self, i: int, j: int) -> bool:
-        return abs(self.scans[i].depth_m - self.scans[j].depth_m) > LEVEL_TOLERANCE_M
+        """Whether scans ``i`` and ``j`` see different walls: their true wall outlines at their two depths
+        lie more than ``WALL_CHANGE_M`` apart somewhere (without a spec: depths more than
+        ``LEVEL_TOLERANCE_M`` apart)."""
+        di, dj = self.scans[i].depth_m, self.scans[j].depth_m
+        if self.spec is None:
+            return abs(di - dj) > LEVEL_TOLERANCE_M
+        return walls_differ(self.spec.site.slices(), di, dj)
 
     def overlap(self, i: int, j: int) -> float:
         """Visible-area overlap of scans ``i`` and ``j`` (``nan`` without a spec or across levels)."""

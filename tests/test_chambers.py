@@ -147,6 +147,31 @@ def test_settings_give_longer_tunnels_surveyed_along_their_length():
     assert tunnels >= 5
 
 
+def test_settings_put_stations_on_an_uneven_floor():
+    for cistern in random_cisterns(10, seed=7, settings=GeneratorSettings(station_depth_jitter_m=0.6)):
+        depths = [s.depth_m for s in cistern.spec.stations]
+        water = cistern.spec.site.water_depth_m
+        assert 0.3 <= min(depths) and max(depths) <= water - 0.3 + 1e-9
+    spans = [np.ptp([s.depth_m for s in c.spec.stations])
+             for c in random_cisterns(10, seed=7, settings=GeneratorSettings(station_depth_jitter_m=0.6))]
+    assert max(spans) > 0.8 and max(np.ptp([s.depth_m for s in c.spec.stations]) for c in CISTERNS) <= 0.1
+
+
+def test_settings_list_the_stations_by_label_or_shuffled_at_the_same_places():
+    visited = random_cisterns(6, seed=7)
+    for order in ("label", "shuffled"):
+        listed = random_cisterns(6, seed=7, settings=GeneratorSettings(station_order=order))
+        for a, b in zip(visited, listed):
+            where = {s.name: (s.x_m, s.y_m, s.yaw_deg) for s in a.spec.stations}
+            assert {s.name: (s.x_m, s.y_m, s.yaw_deg) for s in b.spec.stations} == where
+            assert [s.name for s in b.stations] == [s.name for s in b.spec.stations]
+        names = [[s.name for s in c.spec.stations] for c in listed]
+        if order == "label":
+            assert all(n == sorted(n) for n in names)
+        else:
+            assert any(n != [s.name for s in c.spec.stations] for n, c in zip(names, visited))
+
+
 def test_settings_set_the_sonar_and_its_other_effects():
     settings = GeneratorSettings(bin_m=0.08, step_deg=1.8, sonar={"beam_width_deg": 4.0}, effects={"speckle_looks": 1.0})
     for cistern in random_cisterns(10, seed=7, settings=settings):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -149,10 +150,20 @@ def test_mapper_draws_the_walls_where_they_are():
     assert result.stats["scans_fused"] == 3
 
 
+def test_stations_on_an_uneven_floor_make_one_slice_and_a_bells_levels_three():
+    scan = box_scans([(1.0, 1.5)])[0]
+    tolerance = GridParams().depth_tolerance_m
+    floor = [replace(scan, depth_m=d) for d in (1.0, 1.6, 2.2, 2.8, 1.3)]  # 1.8 m end to end
+    assert depth_slices(floor, [10, 11, 12, 13, 14], tolerance) == [[10, 14, 11, 12, 13]]
+    bell = [replace(scan, depth_m=d) for d in (1.6, 2.6, 3.6, 1.57, 2.63)]
+    assert depth_slices(bell, [10, 11, 12, 13, 14], tolerance) == [[13, 10], [11, 14], [12]]
+
+
 def test_depth_slices_and_unplaced_scans():
     positions = [(1.0, 1.5), (3.0, 4.5), (2.0, 3.0), (1.5, 2.0)]
     scans = box_scans(positions[:2], depth=1.0) + box_scans(positions[2:], depth=2.0)
     assert depth_slices(scans, [0, 1, 2, 3], 0.25) == [[0, 1], [2, 3]]
+    assert depth_slices(scans, [0, 1, 2, 3], 1.0) == [[0, 1, 2, 3]]
     result = EvidenceGridMapper().build(scans, poses_for(positions, scans, [True, True, False, True]), GridParams())
     assert [g.depth_m for g in result.grids] == [1.0, 2.0]
     assert result.stats["scans_fused"] == 3

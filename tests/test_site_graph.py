@@ -116,6 +116,19 @@ def test_scans_at_other_depths_are_joined_by_vertical_ties_not_matches():
     assert loc.guided_pairs(scans, ms, p, ties=ties) == []  # nothing else at one level is left to try
 
 
+def test_stations_on_an_uneven_floor_are_matched_across_its_depths():
+    """Depths 1.0–2.5 m, each station within 0.5 m of the next: one level, so the neighbours are matched
+    however far apart the first and last lie in depth, and every scan is placed by matches alone."""
+    loc, p = SiteGraphLocalizer(), SiteGraphParams()
+    scans = _scans(4, depths=[1.0, 1.5, 2.0, 2.5])
+    first = loc.guided_pairs(scans, [], p)
+    assert {(i, j) for i, j, _ in first} == {(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)}
+    ms = [_match(i, j) for i, j, _ in first]
+    assert {(i, j) for i, j, _ in loc.guided_pairs(scans, ms, p)} == {(0, 2), (1, 3), (0, 3)}
+    poses = loc.localize(scans, ms, p)
+    assert poses.placed.all() and _placed_error(poses).max() < 1e-6
+
+
 def test_marginal_covariances_are_positive_definite():
     loc, p = SiteGraphLocalizer(), SiteGraphParams()
     rng = np.random.default_rng(3)

@@ -59,7 +59,8 @@ class SurfaceParams(BaseModel):
     extend_m: float = Field(1.0, ge=0, description="extrusion above and below a single slice")
     depth_interpolation: Literal["linear", "pchip"] = Field(
         "pchip", description="how the walls run between depth slices")
-    slice_tolerance_m: float = Field(0.25, gt=0, description="stations this close in depth belong to a slice")
+    slice_tolerance_m: float = Field(0.8, gt=0, description="stations this close in depth belong to a slice "
+                                     "(a slice gathers the stations of an uneven floor; a bell's lie 1 m apart)")
     smooth_iterations: int = Field(20, ge=0, description="Taubin smoothing passes of the mesh")
     max_faces: int = Field(40_000, ge=100, description="decimate the mesh down to this many triangles")
 

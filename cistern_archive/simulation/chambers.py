@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Literal
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +91,11 @@ class GeneratorSettings(BaseModel):
                                     description="other settings of the sonar (SimulationSpec's sonar), e.g. beam_width_deg")
     effects: dict[str, float] = Field(default_factory=dict,
                                       description="other effects (SimulationSpec's effects), e.g. speckle_looks")
+    station_depth_jitter_m: float = Field(0.05, ge=0, description="each station's depth is the site's survey "
+                                          "depth ± this (kept 0.3 m off the surface and the floor)")
+    station_order: Literal["visit", "label", "shuffled"] = Field(
+        "visit", description="the order the record lists its stations in: as visited, sorted by label, or "
+                             "shuffled (the survey's chain then says nothing about which stations see each other)")
 
     @model_validator(mode="after")
     def _ranges_ordered(self) -> "GeneratorSettings":
@@ -381,6 +387,22 @@ class GeneratedCistern:
         return len(self.layout.chambers)
 
 
+def station_depth(depth: float, water_depth: float, jitter_m: float, rng: np.random.Generator) -> float:
+    """A station's depth: the survey depth ± ``jitter_m``, 0.3 m or more below the surface and above the floor."""
+    return float(np.clip(depth + rng.uniform(-jitter_m, jitter_m), 0.3, water_depth - 0.3))
+
+
+def listing_order(planned: list[Station], order: str, rng: np.random.Generator) -> list[int]:
+    """Indices of the visited stations in the order the record lists them (``GeneratorSettings.station_order``).
+    A shuffle draws from a generator spawned off ``rng``, so every other draw, of this site and the next,
+    is as in the visiting order."""
+    if order == "label":
+        return sorted(range(len(planned)), key=lambda k: planned[k].name)
+    if order == "shuffled":
+        return [int(k) for k in rng.spawn(1)[0].permutation(len(planned))]
+    return list(range(len(planned)))
+
+
 def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | None = None,
                    stations: int | None = None, settings: GeneratorSettings | None = None) -> GeneratedCistern:
     """A random multi-chamber cistern (module docstring).
@@ -406,10 +428,14 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     planned = plan_stations(rng, layout, n_stations, settings)
     xy = layout.to_map(np.array([s.xy for s in planned]))
     yaws = headings(xy, rng)
+    listed = listing_order(planned, settings.station_order, rng)
+    planned, xy, yaws = [planned[k] for k in listed], xy[listed], yaws[listed]
     depth = float(rng.uniform(1.0, 1.6))
     range_m = float(rng.choice([6.0, 8.0, 10.0]))
     first = layout.chambers[0]
     centre = layout.to_map(np.array([[0.5 * (first.x0 + first.x1), 0.5 * (first.span(0)[0] + first.span(0)[1])]]))
+    site_seed = int(rng.integers(0, 2**31))
+    water_depth = _round(depth + rng.uniform(0.8, 1.5), 2)
     spec = {
         "id": f"cistern-{index:03d}",
         "name": f"Random {n_chambers}-chamber cistern {index:03d}",
@@ -418,8 +444,8 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
                         f"tunnels {', '.join('%.2f' % t.width_m for t in layout.tunnels) or '(none)'} m wide; "
                         f"{n_stations} stations ({', '.join(s.place for s in planned)})."),
         "location": {"place": "simulated", "redact": True},
-        "seed": int(rng.integers(0, 2**31)),
-        "site": {"water_depth_m": _round(depth + rng.uniform(0.8, 1.5), 2),
+        "seed": site_seed,
+        "site": {"water_depth_m": water_depth,
                  "levels": [{"depth_m": 0.0, "walls": {"polygon": [[_round(x), _round(y)] for x, y in layout.outline]},
                              "wall_roughness": _round(rng.uniform(0.03, 0.3))}]},
         "sonar": {"range_m": range_m, "bins": int(round(range_m / settings.bin_m)), "step_deg": settings.step_deg,
@@ -432,7 +458,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         "segmentation": {"min_range_m": 0.4},
         "stations": [
             {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
-             "depth_m": _round(depth + rng.uniform(-0.05, 0.05))}
+             "depth_m": _round(station_depth(depth, water_depth, settings.station_depth_jitter_m, rng))}
             for s, p, yaw in zip(planned, xy, yaws)
         ],
         "references": [{

@@ -3,8 +3,9 @@
 Each placed scan is moved to its pose and its inverse-sonar-model update (beam cone, free space before
 the echo, echo band ``± max(bin, cell) / 2``, see :mod:`cistern_archive.grid.evidence`) is added to the
 slice's :class:`~cistern_archive.grid.tiles.TiledGrid`, then the slice is clamped. Scans are grouped into
-slices by depth: sorted by depth, a scan joins the current slice while it is within
-``depth_tolerance_m`` of the slice's first scan; a slice's depth is the mean of its scans' depths.
+slices by depth level (:func:`~cistern_archive.core.levels.depth_levels`: sorted by depth, a scan joins
+the current slice while it lies within ``depth_tolerance_m`` of the one before, so stations on an uneven
+floor make one plan); a slice's depth is the mean of its scans' depths.
 Where the slices lie at several depths, the echoes are corrected for the lean of their walls, read from
 these first slices, and fused again (``lobe_*``, :mod:`cistern_archive.grid.lobe`: a tall vertical beam
 hears a leaning wall nearer than it is).
@@ -22,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
+from cistern_archive.core.levels import depth_levels
 from cistern_archive.grid.evidence import SonarModel, scan_window
 from cistern_archive.grid.lobe import correct_for_lobe
 from cistern_archive.grid.tiles import TiledGrid
@@ -39,7 +41,9 @@ class GridParams(StageParams):
     clamp_max: float = Field(4.0, gt=0)
     free_no_echo: bool = Field(False, description="beams without an echo free their cone to max range")
     beam_width_deg: float | None = Field(None, gt=0, lt=90, description="override the scans' beam width")
-    depth_tolerance_m: float = Field(0.25, ge=0, description="scans this close in depth share a slice")
+    depth_tolerance_m: float = Field(0.8, ge=0, description="a gap in depth wider than this between the "
+                                     "scans' depths, sorted, begins a new slice (the levels of a bell-shaped "
+                                     "cistern lie about 1 m apart)")
     tile_cells: int = Field(64, ge=8, le=1024, description="tile side in cells")
     pad_cells: int = Field(2, ge=0, description="unknown cells kept around the exported grid")
     lobe_correction: bool = Field(True, description="correct echo ranges on leaning walls for the vertical "
@@ -120,15 +124,12 @@ class EvidenceGridMapper:
 
 
 def depth_slices(scans: Sequence[RangeScan], indices: Sequence[int], tolerance_m: float) -> list[list[int]]:
-    """Group scan indices into depth slices, shallowest first (see the module docstring)."""
+    """Group scan indices into depth slices, shallowest first (see the module docstring); a scan of
+    unknown depth counts as at 0 m."""
     depths = [float(s.depth_m) if np.isfinite(s.depth_m) else 0.0 for s in scans]
-    order = sorted(range(len(scans)), key=lambda k: (depths[k], indices[k]))
-    slices: list[list[int]] = []
-    first_depth = None
+    levels = depth_levels(depths, tolerance_m)
+    order = sorted(range(len(scans)), key=lambda k: (levels[k], depths[k], indices[k]))
+    slices: list[list[int]] = [[] for _ in range(max(levels, default=-1) + 1)]
     for k in order:
-        depth = depths[k]
-        if first_depth is None or depth - first_depth > tolerance_m:
-            slices.append([])
-            first_depth = depth
-        slices[-1].append(indices[k])
+        slices[levels[k]].append(indices[k])
     return slices

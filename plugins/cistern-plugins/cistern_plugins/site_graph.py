@@ -14,8 +14,10 @@ builds a graph over the whole site instead, in three steps.
    ``global_gap`` stations away, and (c) across a break between consecutive stations, the reverse
    match again around the inverse of a forward estimate that has no rival place
    (:func:`reverse_checks`).
-   Scans more than ``level_tolerance_m`` apart in depth are never matched: at different depths of a
-   bell-shaped cistern the walls differ, and the record's vertical ties (``ties``) join the levels.
+   Scans at different depth levels are never matched: at different depths of a bell-shaped cistern the
+   walls differ, and the record's vertical ties (``ties``) join the levels. A level is a run of depths
+   each within ``level_tolerance_m`` of the next (:func:`~cistern_archive.core.levels.depth_levels`), so
+   stations that landed on an uneven floor are matched with each other across the whole run.
 
 2. **Consistent matches as a set** (:func:`consistent_edges`). Every converged match is an edge. An
    edge gains support from every cycle it closes consistently: the reverse match of the same pair that
@@ -129,8 +131,9 @@ class SiteGraphParams(GraphParams):
     global_gap: int = Field(4, ge=1, description="unjoined scans: global matches up to this many stations away")
     reach_factor: float = Field(1.0, gt=0, description="loop candidates within this times the sonar range")
     guess_radius_m: float = Field(0.5, gt=0, description="half-width of a guided match's search window")
-    level_tolerance_m: float = Field(0.5, ge=0, description="scans farther apart in depth are not matched "
-                                     "(depth levels of a bell-shaped cistern lie about 1 m apart)")
+    level_tolerance_m: float = Field(0.8, ge=0, description="a gap in depth wider than this between the "
+                                     "scans' depths, sorted, separates two depth levels, whose scans are not "
+                                     "matched (the levels of a bell-shaped cistern lie about 1 m apart)")
     consistency_m: float = Field(0.2, gt=0, description="cycle closure tolerance in translation")
     consistency_deg: float = Field(3.0, gt=0, description="cycle closure tolerance in heading")
     tie_sigma_m: float = Field(0.02, gt=0, description="horizontal sigma of a vertical tie")
@@ -178,7 +181,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
         out: list[tuple[int, int, None]] = []
         for gap in range(1, p.first_gap + 1):
             for i in range(len(scans) - gap):
-                if same_level(scans[i], scans[i + gap], p):
+                if same_level(scans, i, i + gap, p):
                     out += [(i, i + gap, None), (i + gap, i, None)]
         return out
 
@@ -196,7 +199,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
         out: list[tuple[int, int, MatchGuess | None]] = []
         for i in range(n):
             for j in range(i + 1, n):
-                if frozenset((i, j)) in tried or not same_level(scans[i], scans[j], p):
+                if frozenset((i, j)) in tried or not same_level(scans, i, j, p):
                     continue
                 if graph.group[i] == graph.group[j]:
                     rel = graph.pose[i].between(graph.pose[j])
@@ -218,7 +221,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
                 continue
             for gap in range(1, p.global_gap + 1):
                 options = [j for j in (k - gap, k + gap) if 0 <= j < len(scans) and graph.group[j] != graph.group[k]
-                           and frozenset((k, j)) not in tried | asked and same_level(scans[k], scans[j], p)]
+                           and frozenset((k, j)) not in tried | asked and same_level(scans, k, j, p)]
                 if options:
                     j = options[0]
                     asked.add(frozenset((k, j)))
@@ -312,7 +315,7 @@ def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     for m in matches:
         if not ((m.converged or m.tentative) and 0 <= m.i < n and 0 <= m.j < n and m.i != m.j):
             continue
-        if not np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all() or not same_level(scans[m.i], scans[m.j], p):
+        if not np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all() or not same_level(scans, m.i, m.j, p):
             continue
         edge = Edge.of_match(m, noise)
         if not m.converged:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import gtsam
 import numpy as np
 
+from cistern_archive.core.levels import depth_levels
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import AlignmentQuality, ConvergenceThresholds, ReferenceModel
@@ -29,11 +30,12 @@ def pose_array(pose: gtsam.Pose2) -> np.ndarray:
     return np.array([pose.x(), pose.y(), pose.theta()])
 
 
-def same_level(a: RangeScan, b: RangeScan, p: SiteGraphParams) -> bool:
-    """Whether two scans were taken at one depth level (both depths unknown counts as one level)."""
-    if not (math.isfinite(a.depth_m) and math.isfinite(b.depth_m)):
-        return True
-    return abs(a.depth_m - b.depth_m) <= p.level_tolerance_m
+def same_level(scans: Sequence[RangeScan], i: int, j: int, p: SiteGraphParams) -> bool:
+    """Whether scans ``i`` and ``j`` lie at one depth level (:func:`~cistern_archive.core.levels.depth_levels`;
+    a scan of unknown depth counts as on every level): only then do they see the same walls and may be
+    matched."""
+    levels = depth_levels([s.depth_m for s in scans], p.level_tolerance_m)
+    return levels[i] == levels[j] or -1 in (levels[i], levels[j])
 
 
 @dataclass
@@ -251,7 +253,7 @@ class WallCheck:
             for b in graph.members(graph.group[j]):
                 sa, sb = self.scans[a], self.scans[b]
                 rel = graph.pose[a].between(offset.compose(graph.pose[b]))
-                if same_level(sa, sb, self.p) and math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
+                if same_level(self.scans, a, b, self.p) and math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
                     pairs.append(JoinPair(self.model(a).assess_pair(sb, pose_array(rel), self.limits), a, b, rel))
         return pairs
 
@@ -309,7 +311,7 @@ def several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int
     a, b = graph.members(ga), graph.members(gb)
 
     def matchable(here: list[int], there: list[int]) -> int:
-        return sum(any(same_level(scans[k], scans[m], p) for m in there) for k in here)
+        return sum(any(same_level(scans, k, m, p) for m in there) for k in here)
 
     return matchable(a, b) > 1 and matchable(b, a) > 1
 
@@ -346,9 +348,9 @@ FITS = ContentCache()
 """Group fits already computed (site-graph solves the same groups again in every round)."""
 
 
-def level_members(graph: Graph, scans: Sequence[RangeScan], g: int, depth_of: RangeScan, p: SiteGraphParams) -> list[int]:
+def level_members(graph: Graph, scans: Sequence[RangeScan], g: int, depth_of: int, p: SiteGraphParams) -> list[int]:
     """The scans of group ``g`` at the depth level of scan ``depth_of``."""
-    return [k for k in graph.members(g) if same_level(scans[k], depth_of, p)]
+    return [k for k in graph.members(g) if same_level(scans, k, depth_of, p)]
 
 
 def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[int], p: SiteGraphParams,
@@ -422,7 +424,7 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                     far_apart += [(k, why) for k in members[small]]
                     continue
                 probe = members[small][0]
-                a, b = level_members(graph, scans, big, scans[probe], p), level_members(graph, scans, small, scans[probe], p)
+                a, b = level_members(graph, scans, big, probe, p), level_members(graph, scans, small, probe, p)
                 if not a or not b:
                     continue
                 fit, spreads = group_fit(scans, graph, a, b, p, digest)
