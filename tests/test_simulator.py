@@ -136,6 +136,19 @@ def test_station_outside_the_walls_is_refused():
         simulate_site(spec)
 
 
+def test_a_station_listed_out_of_the_visits_order_is_recorded_at_its_visit():
+    spec = SimulationSpec(
+        id="order", name="order", sonar=SONAR,
+        site=SiteSpec(levels=[LevelSpec(depth_m=0.0, walls=RingSpec(rectangle=(0, 0, 6, 4)))]),
+        stations=[StationSpec(name="s2", x_m=3.0, y_m=2.0, visit=1), StationSpec(name="s1", x_m=1.5, y_m=2.0, visit=0),
+                  StationSpec(name="s3", x_m=4.5, y_m=2.0)],  # no visit: its place in the list
+    )
+    scans = [sim.scan for sim in simulate_site(spec).scans]
+    assert [scan.timestamp - spec.start_time.timestamp() for scan in scans] == [spec.seconds_per_station, 0.0,
+                                                                                 2 * spec.seconds_per_station]
+    assert segment(scans[0], Segmentation()).time_s == scans[0].timestamp  # the localizer sees the time
+
+
 def test_depth_slices_interpolate():
     levels = [(0.0, [np.array([[0, 0], [2, 0], [2, 2], [0, 2]], float)]),
               (2.0, [np.array([[0, 0], [4, 0], [4, 4], [0, 4]], float)])]

@@ -173,8 +173,8 @@ class RangeScan:
     vertical_beam_width_rad : float
         The beam's width in elevation, as in :class:`Scan`.
     time_s : float
-        Reference time (Unix s) of a scan from a moving vehicle, its echoes motion compensated to it;
-        ``nan`` for a stationary scan.
+        Reference time (Unix s): when a stationary scan was recorded (its :attr:`Scan.timestamp`), or
+        the time a moving vehicle's echoes are motion compensated to; ``nan`` when unknown.
     odometry : ndarray, shape (3,), or None
         Dead-reckoned ``(x, y, yaw)`` of the vehicle at ``time_s`` (map frame), for localizers that
         use navigation (``nav-graph``); ``None`` without navigation.

@@ -95,7 +95,7 @@ class GeneratorSettings(BaseModel):
                                           "depth ± this (kept 0.3 m off the surface and the floor)")
     station_order: Literal["visit", "label", "shuffled"] = Field(
         "visit", description="the order the record lists its stations in: as visited, sorted by label, or "
-                             "shuffled (the survey's chain then says nothing about which stations see each other)")
+                             "shuffled; the scans' times keep the order of the visits")
 
     @model_validator(mode="after")
     def _ranges_ordered(self) -> "GeneratorSettings":
@@ -430,6 +430,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     yaws = headings(xy, rng)
     listed = listing_order(planned, settings.station_order, rng)
     planned, xy, yaws = [planned[k] for k in listed], xy[listed], yaws[listed]
+    visits = listed if settings.station_order != "visit" else [None] * len(listed)
     depth = float(rng.uniform(1.0, 1.6))
     range_m = float(rng.choice([6.0, 8.0, 10.0]))
     first = layout.chambers[0]
@@ -458,8 +459,9 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         "segmentation": {"min_range_m": 0.4},
         "stations": [
             {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
-             "depth_m": _round(station_depth(depth, water_depth, settings.station_depth_jitter_m, rng))}
-            for s, p, yaw in zip(planned, xy, yaws)
+             "depth_m": _round(station_depth(depth, water_depth, settings.station_depth_jitter_m, rng)),
+             **({} if visit is None else {"visit": visit})}
+            for s, p, yaw, visit in zip(planned, xy, yaws, visits)
         ],
         "references": [{
             "name": "width", "kind": "truth",

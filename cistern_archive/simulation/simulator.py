@@ -399,14 +399,16 @@ def simulate_site(spec: SimulationSpec, *, effects: EffectsSpec | None = None) -
     start = spec.start_time.timestamp()
     slices = spec.site.slices()
     scans = []
+    visits = [s.visit for s in spec.stations]
     for k, pose in enumerate(station_poses(spec)):
+        visit = visits[k] if k < len(visits) and visits[k] is not None else k
         rings = interpolate_slice(slices, pose.depth_m)
         roughness = spec.site.wall_roughness(pose.depth_m, effects.wall_roughness)
         walls = effects if roughness == effects.wall_roughness else effects.model_copy(
             update={"wall_roughness": roughness})
         scans.append(simulate_scan(
             rings, pose, spec.sonar, walls, station_rng(spec.seed, 1, k),
-            timestamp=start + k * spec.seconds_per_station, water_depth_m=spec.site.water_depth_m,
+            timestamp=start + visit * spec.seconds_per_station, water_depth_m=spec.site.water_depth_m,
             levels=slices if len(spec.site.levels) > 1 else None,
         ))
     return SimulatedSite(spec=spec, scans=scans)

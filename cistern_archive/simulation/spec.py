@@ -235,6 +235,12 @@ class StationSpec(_Strict):
         description="the team's note that the vehicle descended vertically from this earlier station "
         "(written to the record's scan as ``below``); give x_m, y_m with the descent's true drift",
     )
+    visit: int | None = Field(
+        default=None, ge=0,
+        description="the station's place in the order the survey visited the stations, where the list "
+        "gives them in another order: its scan is recorded ``visit`` × ``seconds_per_station`` after the "
+        "start (default: its place in the list)",
+    )
 
 
 class RouteSpec(_Strict):

@@ -462,6 +462,7 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
         beam_width_rad=scan.beam_width_rad,
         station=scan.station,
         vertical_beam_width_rad=scan.vertical_beam_width_rad,
+        time_s=scan.timestamp,
     )
 
 

@@ -1,0 +1,80 @@
+"""The survey's order: the scans as they were recorded, whatever order the record lists them in.
+
+The site graph trusts the survey's chain more than a loop closure (consecutive stations see each other;
+:mod:`cistern_plugins.site_graph`, step 2), and fits groups of scans as wholes only where the survey
+visited them one after the other. A catalog may list its stations in another order — sorted by label,
+or as the team wrote them up. Where every scan has a time of its own, the chain is the order of those
+times; otherwise it is the order of the list. :class:`SurveyOrder` renumbers scans and matches into that
+order for the localizer and its pairs and poses back into the record's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from cistern_archive.core.matches import MatchResult
+from cistern_archive.core.poses import Poses
+from cistern_archive.core.scan import RangeScan
+
+
+def recording_order(scans: Sequence[RangeScan]) -> tuple[int, ...] | None:
+    """The scans' indices in the order they were recorded, or ``None`` when that is the order given (or
+    cannot be told: a scan without a time, or two scans with the same time)."""
+    times = [float(s.time_s) for s in scans]
+    if len(times) < 2 or not all(math.isfinite(t) for t in times) or len(set(times)) < len(times):
+        return None
+    order = tuple(sorted(range(len(times)), key=times.__getitem__))
+    return None if order == tuple(range(len(times))) else order
+
+
+class SurveyOrder:
+    """Scans renumbered into the order they were recorded (:func:`recording_order`): ``scans`` and
+    :meth:`matches` in that order, :meth:`pairs_back` and :meth:`poses_back` in the record's again. Where
+    the record lists the scans as recorded, every method hands its input back unchanged."""
+
+    def __init__(self, scans: Sequence[RangeScan]):
+        self.order = recording_order(scans)
+        if self.order is None:
+            self.scans = list(scans)
+            return
+        self.scans = [scans[k] for k in self.order]
+        self.rank = np.empty(len(self.order), dtype=np.int64)
+        self.rank[list(self.order)] = np.arange(len(self.order))
+
+    def matches(self, matches: Sequence[MatchResult]) -> list[MatchResult]:
+        """``matches`` with their scan indices in the survey's order."""
+        if self.order is None:
+            return list(matches)
+        return [replace(m, i=int(self.rank[m.i]), j=int(self.rank[m.j])) for m in matches]
+
+    def pairs_back(self, pairs: Sequence[tuple]) -> list[tuple]:
+        """Pairs ``(i, j, …)`` of the survey's order with the record's indices."""
+        if self.order is None:
+            return list(pairs)
+        return [(self.order[i], self.order[j], *rest) for i, j, *rest in pairs]
+
+    def poses_back(self, poses: Poses) -> Poses:
+        """Poses of the survey's order in the record's."""
+        if self.order is None:
+            return poses
+        to_record = np.asarray(self.order)
+        n = len(to_record)
+
+        def back(values: np.ndarray) -> np.ndarray:
+            out = np.empty_like(values)
+            out[to_record] = values
+            return out
+
+        reasons = [""] * n
+        for k, reason in zip(to_record, poses.reasons):
+            reasons[int(k)] = reason
+        return replace(
+            poses, xy_m=back(poses.xy_m), yaw_rad=back(poses.yaw_rad), placed=back(poses.placed),
+            reasons=tuple(reasons), reference=int(to_record[poses.reference]) if poses.reference >= 0 else -1,
+            covariance=None if poses.covariance is None else back(poses.covariance),
+            group_links=tuple((int(to_record[i]), int(to_record[j])) for i, j in poses.group_links),
+        )
