@@ -167,6 +167,7 @@ def test_settings_list_the_stations_by_label_or_shuffled_at_the_same_places():
             assert [s.name for s in b.stations] == [s.name for s in b.spec.stations]
             visits = [s.name for s in sorted(b.spec.stations, key=lambda s: s.visit)]
             assert visits == [s.name for s in a.spec.stations]  # the scans' times keep the visits' order
+            assert b.spec.references[0].measure.frame == a.spec.stations[0].name == a.spec.references[0].measure.frame
         names = [[s.name for s in c.spec.stations] for c in listed]
         if order == "label":
             assert all(n == sorted(n) for n in names)

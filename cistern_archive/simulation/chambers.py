@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Literal
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import yaml
@@ -428,6 +428,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     planned = plan_stations(rng, layout, n_stations, settings)
     xy = layout.to_map(np.array([s.xy for s in planned]))
     yaws = headings(xy, rng)
+    frame = planned[0].name  # the reference probe's frame: the first station visited, however listed
     listed = listing_order(planned, settings.station_order, rng)
     planned, xy, yaws = [planned[k] for k in listed], xy[listed], yaws[listed]
     visits = listed if settings.station_order != "visit" else [None] * len(listed)
@@ -465,7 +466,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         ],
         "references": [{
             "name": "width", "kind": "truth",
-            "measure": {"frame": planned[0].name, "inside": [_round(centre[0, 0]), _round(centre[0, 1])],
+            "measure": {"frame": frame, "inside": [_round(centre[0, 0]), _round(centre[0, 1])],
                         "direction_deg": _round(math.degrees(layout.rotation_rad) + 90.0, 2),
                         "repeats": 5, "spacing_m": 0.2},
         }],
