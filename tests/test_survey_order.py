@@ -51,3 +51,5 @@ def test_a_survey_order_renumbers_matches_and_back():
     moved = survey.matches([_match(0, 1)])[0]
     assert (moved.i, moved.j) == (3, 0)
     assert survey.pairs_back([(3, 0, None)]) == [(0, 1, None)]
+    stray = survey.matches([replace(_match(0, 1), i=-1, j=7)])[0]
+    assert (stray.i, stray.j) == (-1, 7)  # an index of no scan is left for the localizer to pass over

@@ -46,10 +46,14 @@ class SurveyOrder:
         self.rank[list(self.order)] = np.arange(len(self.order))
 
     def matches(self, matches: Sequence[MatchResult]) -> list[MatchResult]:
-        """``matches`` with their scan indices in the survey's order."""
+        """``matches`` with their scan indices in the survey's order (an index of no scan stays as it is,
+        for the localizer to pass over)."""
         if self.order is None:
             return list(matches)
-        return [replace(m, i=int(self.rank[m.i]), j=int(self.rank[m.j])) for m in matches]
+        return [replace(m, i=self._renumbered(m.i), j=self._renumbered(m.j)) for m in matches]
+
+    def _renumbered(self, k: int) -> int:
+        return int(self.rank[k]) if 0 <= k < len(self.rank) else k
 
     def pairs_back(self, pairs: Sequence[tuple]) -> list[tuple]:
         """Pairs ``(i, j, …)`` of the survey's order with the record's indices."""
