@@ -44,9 +44,9 @@ Pairs of scans at different depth levels (where the true walls at their two dept
 ``WALL_CHANGE_M`` apart; without a simulation spec, depths more than ``LEVEL_TOLERANCE_M`` apart, the
 mapper's default slice tolerance) see different wall outlines in a site whose walls change with depth;
 their overlap is undefined (``nan``), so they count neither as pairs with ≥ 50 % overlap nor as pairs
-without overlap. Stations at different depths of a site whose walls are the same at every depth are
-pairs like any other. They are reported apart (``cross_level_pairs``, ``cross_level_converged``); the localizer joins
-depth levels through the record's vertical ties (``ScanRef.below``).
+without overlap. They are reported apart (``cross_level_pairs``, ``cross_level_converged``); the
+localizer joins depth levels through the record's vertical ties (``ScanRef.below``). Stations at
+different depths of a site whose walls are the same at every depth are pairs like any other.
 
 With ``--random`` the last line of ``--json`` is exactly ``{"sites", "scans", "placed", "pairs_ge50",
 "pairs_ge50_ok", "far_pairs", "far_pairs_converged", "median_aligned_error_m", "max_aligned_error_m",
