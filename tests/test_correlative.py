@@ -7,6 +7,7 @@ import numpy as np
 
 from cistern_archive.core.scan import RangeScan
 from cistern_archive.grid.polygon import polygon_scan
+from cistern_archive.pipeline.contracts import MatchGuess
 from cistern_archive.testing import simulated_pair
 from cistern_plugins.registration import scan_points
 from cistern_plugins.correlative import CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound
@@ -135,8 +136,6 @@ def test_a_refinement_that_turns_the_heading_out_of_the_searched_window_is_refus
     """Around a guess whose heading is 10° off, the ±6° search's best lies on its edge and the refinement
     turns it on, out of the window the search covered: a pose the search never scored, refused. A guess 2°
     off is matched."""
-    from cistern_archive.pipeline.contracts import MatchGuess
-
     pair, moving = _compass_turned(0.0)
     rng = np.random.default_rng(0)
     far = MatchGuess(pair.dx_m, pair.dy_m, math.radians(10.0), 0.5)

@@ -121,6 +121,7 @@ from cistern_plugins.site_groups import (
     largest_group,
     merge_groups,
     same_level,
+    scan_levels,
     unplaced_reason,
 )
 from cistern_plugins.survey_order import SurveyOrder
@@ -182,9 +183,10 @@ class SiteGraphLocalizer(GuidedLocalizer):
         """First round: every pair of one depth level up to ``first_gap`` stations apart, nearest first,
         both ways, without a guess."""
         out: list[tuple[int, int, None]] = []
+        levels = scan_levels(scans, p)
         for gap in range(1, p.first_gap + 1):
             for i in range(len(scans) - gap):
-                if same_level(scans, i, i + gap, p):
+                if same_level(levels, i, i + gap):
                     out += [(i, i + gap, None), (i + gap, i, None)]
         return out
 
@@ -207,9 +209,10 @@ class SiteGraphLocalizer(GuidedLocalizer):
         graph = consistent_edges(scans, matches, p, ties)
         tried = {frozenset((m.i, m.j)) for m in matches}
         out: list[tuple[int, int, MatchGuess | None]] = []
+        levels = scan_levels(scans, p)
         for i in range(n):
             for j in range(i + 1, n):
-                if frozenset((i, j)) in tried or not same_level(scans, i, j, p):
+                if frozenset((i, j)) in tried or not same_level(levels, i, j):
                     continue
                 if graph.group[i] == graph.group[j]:
                     rel = graph.pose[i].between(graph.pose[j])
@@ -226,12 +229,13 @@ class SiteGraphLocalizer(GuidedLocalizer):
         main = largest_group(graph)
         out: list[tuple[int, int, None]] = []
         asked: set[frozenset] = set()
+        levels = scan_levels(scans, p)
         for k in range(len(scans)):
             if graph.group[k] == main and len(graph.members(main)) > 1:
                 continue
             for gap in range(1, p.global_gap + 1):
                 options = [j for j in (k - gap, k + gap) if 0 <= j < len(scans) and graph.group[j] != graph.group[k]
-                           and frozenset((k, j)) not in tried | asked and same_level(scans, k, j, p)]
+                           and frozenset((k, j)) not in tried | asked and same_level(levels, k, j)]
                 if options:
                     j = options[0]
                     asked.add(frozenset((k, j)))
@@ -328,11 +332,12 @@ def match_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     matched twice)."""
     n = len(scans)
     noise = p.noise()
+    levels = scan_levels(scans, p)
     out: dict[tuple[int, int], tuple[Edge, bool, float | None]] = {}
     for m in matches:
         if not ((m.converged or m.tentative) and 0 <= m.i < n and 0 <= m.j < n and m.i != m.j):
             continue
-        if not np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all() or not same_level(scans, m.i, m.j, p):
+        if not np.isfinite([m.dx_m, m.dy_m, m.dyaw_rad]).all() or not same_level(levels, m.i, m.j):
             continue
         edge = Edge.of_match(m, noise)
         if not m.converged:

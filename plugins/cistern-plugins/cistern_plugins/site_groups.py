@@ -30,11 +30,15 @@ def pose_array(pose: gtsam.Pose2) -> np.ndarray:
     return np.array([pose.x(), pose.y(), pose.theta()])
 
 
-def same_level(scans: Sequence[RangeScan], i: int, j: int, p: SiteGraphParams) -> bool:
-    """Whether scans ``i`` and ``j`` lie at one depth level (:func:`~cistern_archive.core.levels.depth_levels`;
-    a scan of unknown depth counts as on every level): only then do they see the same walls and may be
-    matched."""
-    levels = depth_levels([s.depth_m for s in scans], p.level_tolerance_m)
+def scan_levels(scans: Sequence[RangeScan], p: SiteGraphParams) -> tuple[int, ...]:
+    """The depth level of each scan (:func:`~cistern_archive.core.levels.depth_levels`; ``-1`` for a scan
+    of unknown depth): only scans of one level see the same walls and may be matched."""
+    return depth_levels([s.depth_m for s in scans], p.level_tolerance_m)
+
+
+def same_level(levels: Sequence[int], i: int, j: int) -> bool:
+    """Whether scans ``i`` and ``j`` lie at one depth level of ``levels`` (:func:`scan_levels`); a scan of
+    unknown depth counts as on every level."""
     return levels[i] == levels[j] or -1 in (levels[i], levels[j])
 
 
@@ -231,6 +235,7 @@ class WallCheck:
 
     def __init__(self, scans: Sequence[RangeScan], p: SiteGraphParams):
         self.scans, self.p = scans, p
+        self.levels = scan_levels(scans, p)
         self.limits = ConvergenceThresholds()
         self.models: dict[int, ReferenceModel] = {}
 
@@ -253,7 +258,7 @@ class WallCheck:
             for b in graph.members(graph.group[j]):
                 sa, sb = self.scans[a], self.scans[b]
                 rel = graph.pose[a].between(offset.compose(graph.pose[b]))
-                if same_level(self.scans, a, b, self.p) and math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
+                if same_level(self.levels, a, b) and math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
                     pairs.append(JoinPair(self.model(a).assess_pair(sb, pose_array(rel), self.limits), a, b, rel))
         return pairs
 
@@ -309,9 +314,10 @@ def several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int
     """Whether each of two groups has at least two scans that could be matched with the other group (at
     the depth level of one of its scans): only then can loop closures come from two stations a side."""
     a, b = graph.members(ga), graph.members(gb)
+    levels = scan_levels(scans, p)
 
     def matchable(here: list[int], there: list[int]) -> int:
-        return sum(any(same_level(scans, k, m, p) for m in there) for k in here)
+        return sum(any(same_level(levels, k, m) for m in there) for k in here)
 
     return matchable(a, b) > 1 and matchable(b, a) > 1
 
@@ -350,7 +356,8 @@ FITS = ContentCache()
 
 def level_members(graph: Graph, scans: Sequence[RangeScan], g: int, depth_of: int, p: SiteGraphParams) -> list[int]:
     """The scans of group ``g`` at the depth level of scan ``depth_of``."""
-    return [k for k in graph.members(g) if same_level(scans, k, depth_of, p)]
+    levels = scan_levels(scans, p)
+    return [k for k in graph.members(g) if same_level(levels, k, depth_of)]
 
 
 def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[int], p: SiteGraphParams,

@@ -66,19 +66,15 @@ class SurveyOrder:
         if self.order is None:
             return poses
         to_record = np.asarray(self.order)
-        n = len(to_record)
 
         def back(values: np.ndarray) -> np.ndarray:
             out = np.empty_like(values)
             out[to_record] = values
             return out
 
-        reasons = [""] * n
-        for k, reason in zip(to_record, poses.reasons):
-            reasons[int(k)] = reason
         return replace(
             poses, xy_m=back(poses.xy_m), yaw_rad=back(poses.yaw_rad), placed=back(poses.placed),
-            reasons=tuple(reasons), reference=int(to_record[poses.reference]) if poses.reference >= 0 else -1,
+            reasons=tuple(back(np.array(poses.reasons, dtype=object))), reference=int(to_record[poses.reference]) if poses.reference >= 0 else -1,
             covariance=None if poses.covariance is None else back(poses.covariance),
             group_links=tuple((int(to_record[i]), int(to_record[j])) for i, j in poses.group_links),
         )
