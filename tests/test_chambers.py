@@ -175,6 +175,25 @@ def test_settings_list_the_stations_by_label_or_shuffled_at_the_same_places():
             assert any(n != [s.name for s in c.spec.stations] for n, c in zip(names, visited))
 
 
+def test_settings_stand_pillars_in_the_chambers_clear_of_walls_tunnels_and_stations():
+    settings = GeneratorSettings(pillars=(1, 2))
+    plain = random_cisterns(8, seed=7)
+    pillared = random_cisterns(8, seed=7, settings=settings)
+    assert sum(len(c.spec.site.levels[0].islands) for c in pillared) >= 8
+    assert pillared[0].spec.site.levels[0].walls == plain[0].spec.site.levels[0].walls  # pillars added to its rooms
+    for b in pillared:
+        outer, *pillars = b.spec.site.levels[0].rings()
+        for pillar in pillars:
+            assert contains([outer], pillar).all()
+            assert wall_distance(pillar, outer).min() >= 0.8 - 1e-6  # the vehicle passes round it
+            stations = np.array([[s.x_m, s.y_m] for s in b.spec.stations])
+            assert not contains([pillar], stations).any()
+            assert wall_distance(stations, pillar).min() >= 0.45 - 1e-3
+    assert all(not c.spec.site.levels[0].islands for c in plain)
+    with pytest.raises(ValueError, match="pillars"):
+        GeneratorSettings(pillars=(2, 1))
+
+
 def test_settings_set_the_sonar_and_its_other_effects():
     settings = GeneratorSettings(bin_m=0.08, step_deg=1.8, sonar={"beam_width_deg": 4.0}, effects={"speckle_looks": 1.0})
     for cistern in random_cisterns(10, seed=7, settings=settings):

@@ -94,7 +94,12 @@ class GuidedMatcher(Matcher, Protocol):
 
 @runtime_checkable
 class Localizer(Protocol):
-    """Turns pair-wise matches into one pose per scan."""
+    """Turns pair-wise matches into one pose per scan.
+
+    The runner hands a localizer the scans in the survey's order — as recorded, where every scan has a
+    time of its own (:mod:`cistern_archive.pipeline.survey_order`) — so that neighbouring indices are
+    consecutive stations; the indices of its pairs, of the matches it is given and of its poses are
+    those of that order, and the runner maps them to the record's."""
 
     name: ClassVar[str]
     Params: ClassVar[type[StageParams]]

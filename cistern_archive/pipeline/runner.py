@@ -39,6 +39,7 @@ from cistern_archive.pipeline.contracts import (
 )
 from cistern_archive.pipeline.registry import LoadedPlugin, Registry, checked_plugin, default_registry
 from cistern_archive.pipeline.results import PluginProvenance, SiteBuild, SiteResult, StageFailure
+from cistern_archive.pipeline.survey_order import SurveyOrder
 from cistern_archive.sonar.readers import read_file
 
 T = TypeVar("T")
@@ -160,16 +161,21 @@ def match_rounds(
     pair or ``MAX_MATCH_ROUNDS`` rounds have run. ``run_pair(i, j, guess)`` matches one pair (e.g. with
     :func:`match_pair`); ``plan(label, func)`` runs the localizer's own calls (the runner uses it to
     label a failure). A pair is matched at most once without a guess and once with one: a
-    global match may be followed by a guided one, but a pair asked again is not matched again."""
+    global match may be followed by a guided one, but a pair asked again is not matched again.
+
+    The localizer sees the scans in the survey's order (:class:`~cistern_archive.pipeline.survey_order.SurveyOrder`:
+    as recorded, where every scan has a time); the pairs it asks for are run, and returned, with the
+    record's indices."""
     params = localizer.params
-    pairs = plan("pair list", lambda: localizer.instance.pairs(len(scans), params))
+    survey = SurveyOrder(scans)
+    pairs = survey.pairs_back(plan("pair list", lambda: localizer.instance.pairs(len(scans), params)))
     matches = [run_pair(i, j, None) for i, j in pairs]
     if not localizer.plugin.has(GuidedLocalizer):
         return matches
     matched, guided = set(pairs), set()
     for round_no in range(2, MAX_MATCH_ROUNDS + 1):
-        asked = plan(f"pair list of round {round_no}",
-                     lambda: localizer.instance.guided_pairs(scans, list(matches), params, ties=tuple(ties)))
+        asked = survey.pairs_back(plan(f"pair list of round {round_no}", lambda: localizer.instance.guided_pairs(
+            survey.scans, survey.matches(matches), params, ties=tuple(ties))))
         fresh: dict[tuple[int, int], MatchGuess | None] = {}
         for i, j, guess in asked:
             if (i, j) not in fresh and (i, j) not in (matched if guess is None else guided):
@@ -184,8 +190,11 @@ def match_rounds(
 
 def localize(localizer: Stage, scans: Sequence[RangeScan], matches: Sequence[MatchResult],
              ties: Sequence[VerticalTie] = ()) -> Poses:
-    """One pose per scan (or the reason it is unplaced) from the matches and the vertical ``ties``."""
-    return localizer.instance.localize(scans, matches, localizer.params, ties=tuple(ties))
+    """One pose per scan (or the reason it is unplaced) from the matches and the vertical ``ties``, in the
+    record's order; the localizer sees the survey's (:class:`~cistern_archive.pipeline.survey_order.SurveyOrder`)."""
+    survey = SurveyOrder(scans)
+    return survey.poses_back(localizer.instance.localize(survey.scans, survey.matches(matches), localizer.params,
+                                                         ties=tuple(ties)))
 
 
 @dataclass

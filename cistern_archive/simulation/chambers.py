@@ -58,6 +58,7 @@ WALL_MARGIN_M = 0.25
 NEAR_WALL_M = (0.45, 0.8)
 MIN_SPACING_M = 0.8
 OPENING_INSET_M = 0.5
+PILLAR_CLEARANCE_M = 0.8
 COMPASS_BIAS_DEG = 2.0
 COMPASS_SIGMA_DEG = 2.0
 YAW_JITTER_DEG = 20.0
@@ -93,13 +94,16 @@ class GeneratorSettings(BaseModel):
                                       description="other effects (SimulationSpec's effects), e.g. speckle_looks")
     station_depth_jitter_m: float = Field(0.05, ge=0, description="each station's depth is the site's survey "
                                           "depth ± this (kept 0.3 m off the surface and the floor)")
+    pillars: tuple[int, int] = Field((0, 0), description="range of the number of free-standing pillars in "
+                                     "each chamber (rock left to hold the roof)")
+    pillar_size_m: tuple[float, float] = Field((0.4, 1.0), description="range of a pillar's width")
     station_order: Literal["visit", "label", "shuffled"] = Field(
         "visit", description="the order the record lists its stations in: as visited, sorted by label, or "
                              "shuffled; the scans' times keep the order of the visits")
 
     @model_validator(mode="after")
     def _ranges_ordered(self) -> "GeneratorSettings":
-        for name in ("tunnel_length_m", "tunnel_width_m", "multipath_fraction"):
+        for name in ("tunnel_length_m", "tunnel_width_m", "multipath_fraction", "pillars", "pillar_size_m"):
             lo, hi = getattr(self, name)
             if not 0 <= lo <= hi:
                 raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got ({lo}, {hi})")
@@ -262,6 +266,43 @@ def wall_distance(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     return np.linalg.norm(p - (a + t[..., None] * e), axis=-1).min(axis=1)
 
 
+def pillar_ring(rng: np.random.Generator, centre: np.ndarray, size: float) -> np.ndarray:
+    """A pillar ``size`` wide about ``centre`` (counter-clockwise): a square turned at random, or a round
+    one (12 sides)."""
+    if rng.random() < 0.5:
+        angles = float(rng.uniform(0.0, math.pi / 2)) + np.arange(4) * (math.pi / 2)
+        radius = size / math.sqrt(2.0)
+    else:
+        angles = np.arange(12) * (math.pi / 6)
+        radius = size / 2.0
+    return np.asarray(centre, dtype=np.float64) + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+
+
+def random_pillars(rng: np.random.Generator, layout: Layout, settings: GeneratorSettings) -> list[np.ndarray]:
+    """Free-standing pillars (site frame), ``settings.pillars`` per chamber as far as they fit: each
+    ``PILLAR_CLEARANCE_M`` or more from every wall and other pillar, and clear of the tunnels' mouths
+    (as far from a chamber's end walls as from its other walls, plus the opening stations' inset)."""
+    site_ring = outline(layout.chambers, layout.tunnels)
+    pillars: list[tuple[np.ndarray, float, np.ndarray]] = []
+    for chamber in layout.chambers:
+        ring = chamber.ring()
+        wanted = int(rng.integers(settings.pillars[0], settings.pillars[1] + 1))
+        here = 0
+        for _ in range(400):
+            if here == wanted:
+                break
+            size = float(rng.uniform(*settings.pillar_size_m))
+            centre = rng.uniform(ring.min(axis=0), ring.max(axis=0))
+            reach = size / math.sqrt(2.0) + PILLAR_CLEARANCE_M
+            if (not contains([ring], centre[None])[0] or wall_distance(centre[None], site_ring)[0] < reach
+                    or min(centre[0] - chamber.x0, chamber.x1 - centre[0]) < reach + OPENING_INSET_M
+                    or any(np.hypot(*(centre - c)) < reach + r for c, r, _ in pillars)):
+                continue
+            pillars.append((centre, size / math.sqrt(2.0), pillar_ring(rng, centre, size)))
+            here += 1
+    return [ring for _, _, ring in pillars]
+
+
 @dataclass(frozen=True)
 class Station:
     """A planned station in the site's frame: label, position and where it is."""
@@ -272,9 +313,10 @@ class Station:
 
 
 def _chamber_stations(rng: np.random.Generator, chamber: Chamber, site_ring: np.ndarray, n: int,
-                      prefix: str, taken: list[np.ndarray]) -> list[Station]:
-    """``n`` stations inside ``chamber``, some near a wall, apart by MIN_SPACING_M (less when many
-    stations share a small chamber: half the side of the area each would have)."""
+                      prefix: str, taken: list[np.ndarray], pillars: list[np.ndarray] = ()) -> list[Station]:
+    """``n`` stations inside ``chamber``, outside its ``pillars``, some near a wall (or a pillar), apart by
+    MIN_SPACING_M (less when many stations share a small chamber: half the side of the area each would
+    have)."""
     ring = chamber.ring()
     spacing = min(MIN_SPACING_M, 0.5 * math.sqrt(abs(_area(ring)) / n))
     lo, hi = ring.min(axis=0), ring.max(axis=0)
@@ -284,9 +326,9 @@ def _chamber_stations(rng: np.random.Generator, chamber: Chamber, site_ring: np.
             break
         near = rng.random() < 0.4
         p = rng.uniform(lo, hi)
-        clearance = float(wall_distance(p[None], site_ring)[0])
+        clearance = min(float(wall_distance(p[None], wall)[0]) for wall in [site_ring, *pillars])
         wanted = NEAR_WALL_M[0] <= clearance <= NEAR_WALL_M[1] if near else clearance > NEAR_WALL_M[1]
-        if not wanted or not contains([ring], p[None])[0]:
+        if not wanted or not contains([ring], p[None])[0] or any(contains([pillar], p[None])[0] for pillar in pillars):
             continue
         if any(np.hypot(*(p - q)) < spacing for q in taken + [f for f, _ in found]):
             continue
@@ -345,9 +387,10 @@ def _area(ring: np.ndarray) -> float:
 
 
 def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int,
-                  settings: GeneratorSettings | None = None) -> list[Station]:
-    """Stations in visiting order (module docstring), in the site's frame; ``n_stations`` counts one
-    station per tunnel, however many ``settings.tunnel_station_spacing_m`` puts there."""
+                  settings: GeneratorSettings | None = None, pillars: list[np.ndarray] = ()) -> list[Station]:
+    """Stations in visiting order (module docstring), in the site's frame, clear of the ``pillars``;
+    ``n_stations`` counts one station per tunnel, however many ``settings.tunnel_station_spacing_m`` puts
+    there."""
     spacing = (settings or GeneratorSettings()).tunnel_station_spacing_m
     site_ring = outline(layout.chambers, layout.tunnels)
     counts = station_counts(rng, layout.chambers, n_stations)
@@ -358,7 +401,7 @@ def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int,
         if k > 0:
             stations += connectors[k - 1]
         taken = [s.xy for s in stations] + [s.xy for tunnel in connectors[k:] for s in tunnel]
-        stations += _chamber_stations(rng, chamber, site_ring, n, "abc"[k], taken)
+        stations += _chamber_stations(rng, chamber, site_ring, n, "abc"[k], taken, pillars)
     return stations
 
 
@@ -425,7 +468,9 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         raise ValueError(f"chambers must be 1-3 and stations {STATIONS[0]}-{STATIONS[1]}, "
                          f"got {n_chambers} and {n_stations}")
     layout = random_layout(rng, n_chambers, settings)
-    planned = plan_stations(rng, layout, n_stations, settings)
+    # pillars draw from a generator of their own, so that without them every draw is as before
+    pillars = random_pillars(rng.spawn(1)[0], layout, settings) if settings.pillars[1] > 0 else []
+    planned = plan_stations(rng, layout, n_stations, settings, pillars)
     xy = layout.to_map(np.array([s.xy for s in planned]))
     yaws = headings(xy, rng)
     frame = planned[0].name  # the reference probe's frame: the first station visited, however listed
@@ -444,11 +489,14 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         "description": (f"{n_chambers} chamber(s) "
                         f"({', '.join('%.1f x %.1f m' % c.extent_m() for c in layout.chambers)}) joined by "
                         f"tunnels {', '.join('%.2f' % t.width_m for t in layout.tunnels) or '(none)'} m wide; "
-                        f"{n_stations} stations ({', '.join(s.place for s in planned)})."),
+                        f"{n_stations} stations ({', '.join(s.place for s in planned)})"
+                        + (f"; {len(pillars)} pillar(s)." if pillars else ".")),
         "location": {"place": "simulated", "redact": True},
         "seed": site_seed,
         "site": {"water_depth_m": water_depth,
                  "levels": [{"depth_m": 0.0, "walls": {"polygon": [[_round(x), _round(y)] for x, y in layout.outline]},
+                             **({"islands": [{"polygon": [[_round(x), _round(y)] for x, y in layout.to_map(pillar)]}
+                                             for pillar in pillars]} if pillars else {}),
                              "wall_roughness": _round(rng.uniform(0.03, 0.3))}]},
         "sonar": {"range_m": range_m, "bins": int(round(range_m / settings.bin_m)), "step_deg": settings.step_deg,
                   **settings.sonar},

@@ -42,7 +42,7 @@ builds a graph over the whole site instead, in three steps.
    each station within sight of the last one, as a SLAM system trusts its odometry more than a loop
    closure — so a *sequence link* joins two groups on less (consecutive in the order the scans were
    recorded: by their times where every scan has its own, else as the record lists them,
-   :mod:`cistern_plugins.survey_order`): the match of consecutive stations ``i → j``
+   :mod:`cistern_archive.pipeline.survey_order`): the match of consecutive stations ``i → j``
    and the independent match ``j → i`` (each converged or tentative) agree as a 2-cycle, and the more
    confident of the two reaches ``sequence_confidence``; or ``i → j`` converged and ``j → i`` gave no
    estimate at all (a reverse estimate that disagrees vetoes it). That is what a gallery's neighbour
@@ -124,7 +124,6 @@ from cistern_plugins.site_groups import (
     scan_levels,
     unplaced_reason,
 )
-from cistern_plugins.survey_order import SurveyOrder
 from cistern_plugins.wls import vertical_ties
 
 
@@ -194,14 +193,8 @@ class SiteGraphLocalizer(GuidedLocalizer):
                      ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
         """The first round (:meth:`first_pairs`) when nothing was matched yet; then loop candidates
         within reach of the solution so far (with a guess) and global matches for the scans not yet
-        joined to the rest (module docstring, step 1). The survey's chain is the order the scans were
-        recorded in (:mod:`cistern_plugins.survey_order`)."""
-        survey = SurveyOrder(scans)
-        return survey.pairs_back(self.survey_pairs(survey.scans, survey.matches(matches), params, ties=ties))
-
-    def survey_pairs(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
-                     ties: Sequence[VerticalTie] = ()) -> list[tuple[int, int, MatchGuess | None]]:
-        """:meth:`guided_pairs` of scans in the order they were recorded."""
+        joined to the rest (module docstring, step 1). The scans come in the survey's order
+        (:mod:`cistern_archive.pipeline.survey_order`)."""
         p = SiteGraphParams.of(params)
         n = len(scans)
         if not matches:
@@ -246,13 +239,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
     def localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
                  ties: Sequence[VerticalTie] = ()) -> Poses:
         """Place every scan a consistent chain of matches joins to the reference (module docstring); the
-        survey's chain is the order the scans were recorded in (:mod:`cistern_plugins.survey_order`)."""
-        survey = SurveyOrder(scans)
-        return survey.poses_back(self.survey_localize(survey.scans, survey.matches(matches), params, ties=ties))
-
-    def survey_localize(self, scans: Sequence[RangeScan], matches: Sequence[MatchResult], params: StageParams, *,
-                        ties: Sequence[VerticalTie] = ()) -> Poses:
-        """:meth:`localize` of scans in the order they were recorded."""
+        scans come in the survey's order (:mod:`cistern_archive.pipeline.survey_order`)."""
         p = SiteGraphParams.of(params)
         n = len(scans)
         graph = consistent_edges(scans, matches, p, ties)

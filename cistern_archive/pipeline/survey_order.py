@@ -1,11 +1,14 @@
 """The survey's order: the scans as they were recorded, whatever order the record lists them in.
 
-The site graph trusts the survey's chain more than a loop closure (consecutive stations see each other;
-:mod:`cistern_plugins.site_graph`, step 2), and fits groups of scans as wholes only where the survey
-visited them one after the other. A catalog may list its stations in another order — sorted by label,
-or as the team wrote them up. Where every scan has a time of its own, the chain is the order of those
-times; otherwise it is the order of the list. :class:`SurveyOrder` renumbers scans and matches into that
-order for the localizer and its pairs and poses back into the record's.
+Localizers chain scans by their order: the paper's WLS matches neighbours (McVicker et al. Table I), the
+pose graph every pair within a window, and the site graph trusts the survey's chain more than a loop
+closure and fits groups of scans as wholes only where the survey visited them one after the other. A
+catalog may list its stations in another order — sorted by label, or as the team wrote them up. Where
+every scan has a time of its own, the survey's order is the order of those times; otherwise it is the
+order of the list. The runner hands every localizer its scans and matches in that order through
+:class:`SurveyOrder` (:func:`cistern_archive.pipeline.runner.match_rounds` and
+:func:`~cistern_archive.pipeline.runner.localize`) and takes its pairs and poses back into the record's
+order, so no localizer, built-in or third-party, needs to know.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.poses import Poses
 from cistern_archive.core.scan import RangeScan
+from cistern_archive.pipeline.status import label_indices
 
 
 def recording_order(scans: Sequence[RangeScan]) -> tuple[int, ...] | None:
@@ -62,10 +66,13 @@ class SurveyOrder:
         return [(self.order[i], self.order[j], *rest) for i, j, *rest in pairs]
 
     def poses_back(self, poses: Poses) -> Poses:
-        """Poses of the survey's order in the record's."""
+        """Poses of the survey's order in the record's; scan indices in their reasons (``scan 3``,
+        ``(3,4)``) are given as station labels (:func:`~cistern_archive.pipeline.status.label_indices`),
+        as they would mean other scans in the record's order."""
         if self.order is None:
             return poses
         to_record = np.asarray(self.order)
+        labels = [s.station for s in self.scans]
 
         def back(values: np.ndarray) -> np.ndarray:
             out = np.empty_like(values)
@@ -74,7 +81,8 @@ class SurveyOrder:
 
         return replace(
             poses, xy_m=back(poses.xy_m), yaw_rad=back(poses.yaw_rad), placed=back(poses.placed),
-            reasons=tuple(back(np.array(poses.reasons, dtype=object))), reference=int(to_record[poses.reference]) if poses.reference >= 0 else -1,
+            reasons=tuple(back(np.array([label_indices(r, labels) for r in poses.reasons], dtype=object))),
+            reference=int(to_record[poses.reference]) if poses.reference >= 0 else -1,
             covariance=None if poses.covariance is None else back(poses.covariance),
             group_links=tuple((int(to_record[i]), int(to_record[j])) for i, j in poses.group_links),
         )
