@@ -194,6 +194,19 @@ def test_settings_stand_pillars_in_the_chambers_clear_of_walls_tunnels_and_stati
         GeneratorSettings(pillars=(2, 1))
 
 
+def test_settings_bring_the_vehicle_back_to_the_first_chamber_for_a_last_station():
+    plain = random_cisterns(6, seed=7)
+    back = random_cisterns(6, seed=7, settings=GeneratorSettings(return_to_start=True))
+    for a, b in zip(plain, back):
+        assert [s.name for s in b.spec.stations] == [s.name for s in a.spec.stations] + ["r1"]
+        assert b.spec.stations[:-1] == a.spec.stations and b.spec.site == a.spec.site  # the same site, one more station
+        first = b.layout.to_map(b.layout.chambers[0].ring())
+        last = b.spec.stations[-1]
+        assert contains([first], np.array([[last.x_m, last.y_m]]))[0]
+        others = np.array([[s.x_m, s.y_m] for s in b.spec.stations[:-1]])
+        assert np.hypot(*(others - [last.x_m, last.y_m]).T).min() > 0.3
+
+
 def test_settings_set_the_sonar_and_its_other_effects():
     settings = GeneratorSettings(bin_m=0.08, step_deg=1.8, sonar={"beam_width_deg": 4.0}, effects={"speckle_looks": 1.0})
     for cistern in random_cisterns(10, seed=7, settings=settings):

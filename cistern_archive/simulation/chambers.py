@@ -95,6 +95,8 @@ class GeneratorSettings(BaseModel):
                                       description="other effects (SimulationSpec's effects), e.g. speckle_looks")
     station_depth_jitter_m: float = Field(0.05, ge=0, description="each station's depth is the site's survey "
                                           "depth ± this (kept 0.3 m off the surface and the floor)")
+    return_to_start: bool = Field(False, description="the vehicle comes back to the first chamber, where it "
+                                  "was launched, and records one more station there (``r1``) last")
     pillars: tuple[int, int] = Field((0, 0), description="range of the number of free-standing pillars in "
                                      "each chamber (rock left to hold the roof)")
     pillar_size_m: tuple[float, float] = Field((0.4, 1.0), description="range of a pillar's width")
@@ -474,6 +476,14 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     planned = plan_stations(rng, layout, n_stations, settings, pillars)
     xy = layout.to_map(np.array([s.xy for s in planned]))
     yaws = headings(xy, rng)
+    returned = rng.spawn(1)[0] if settings.return_to_start else None  # its draws: a generator of its own
+    back = None
+    if returned is not None:
+        back = _chamber_stations(returned, layout.chambers[0], outline(layout.chambers, layout.tunnels), 1, "r",
+                                 [s.xy for s in planned], pillars)[0]
+        planned.append(back)
+        xy = np.vstack([xy, layout.to_map(back.xy[None])])
+        yaws = np.append(yaws, headings(xy[-2:], returned)[-1])
     frame = planned[0].name  # the reference probe's frame: the first station visited, however listed
     listed = listing_order(planned, settings.station_order, rng)
     planned, xy, yaws = [planned[k] for k in listed], xy[listed], yaws[listed]
@@ -509,7 +519,8 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
         "segmentation": {"min_range_m": 0.4},
         "stations": [
             {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
-             "depth_m": _round(station_depth(depth, water_depth, settings.station_depth_jitter_m, rng)),
+             "depth_m": _round(station_depth(depth, water_depth, settings.station_depth_jitter_m,
+                                             returned if s is back else rng)),
              **({} if visit is None else {"visit": visit})}
             for s, p, yaw, visit in zip(planned, xy, yaws, visits)
         ],
