@@ -37,6 +37,7 @@ pillars in the chambers, for studies of sites unlike these.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
@@ -316,7 +317,7 @@ class Station:
 
 
 def _chamber_stations(rng: np.random.Generator, chamber: Chamber, site_ring: np.ndarray, n: int,
-                      prefix: str, taken: list[np.ndarray], pillars: list[np.ndarray] = ()) -> list[Station]:
+                      prefix: str, taken: list[np.ndarray], pillars: Sequence[np.ndarray] = ()) -> list[Station]:
     """``n`` stations inside ``chamber``, outside its ``pillars``, some near a wall (or a pillar), apart by
     MIN_SPACING_M (less when many stations share a small chamber: half the side of the area each would
     have)."""
@@ -390,7 +391,7 @@ def _area(ring: np.ndarray) -> float:
 
 
 def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int,
-                  settings: GeneratorSettings | None = None, pillars: list[np.ndarray] = ()) -> list[Station]:
+                  settings: GeneratorSettings | None = None, pillars: Sequence[np.ndarray] = ()) -> list[Station]:
     """Stations in visiting order (module docstring), in the site's frame, clear of the ``pillars``;
     ``n_stations`` counts one station per tunnel, however many ``settings.tunnel_station_spacing_m`` puts
     there."""
