@@ -183,10 +183,10 @@ def test_settings_stand_pillars_in_the_chambers_clear_of_walls_tunnels_and_stati
     assert pillared[0].spec.site.levels[0].walls == plain[0].spec.site.levels[0].walls  # pillars added to its rooms
     for b in pillared:
         outer, *pillars = b.spec.site.levels[0].rings()
+        stations = np.array([[s.x_m, s.y_m] for s in b.spec.stations])
         for pillar in pillars:
             assert contains([outer], pillar).all()
             assert wall_distance(pillar, outer).min() >= 0.8 - 1e-6  # the vehicle passes round it
-            stations = np.array([[s.x_m, s.y_m] for s in b.spec.stations])
             assert not contains([pillar], stations).any()
             assert wall_distance(stations, pillar).min() >= 0.45 - 1e-3
     assert all(not c.spec.site.levels[0].islands for c in plain)

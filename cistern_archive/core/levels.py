@@ -8,21 +8,8 @@ localizer matches only scans of one level, and the mapper fuses each level into 
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
-
-
-@functools.lru_cache(maxsize=64)
-def _levels(depths_m: tuple[float, ...], tolerance_m: float) -> tuple[int, ...]:
-    order = sorted((d, k) for k, d in enumerate(depths_m) if math.isfinite(d))
-    levels = [-1] * len(depths_m)
-    level, last = -1, -math.inf
-    for depth, k in order:
-        if depth - last > tolerance_m:
-            level += 1
-        levels[k], last = level, depth
-    return tuple(levels)
 
 
 def depth_levels(depths_m: Sequence[float], tolerance_m: float) -> tuple[int, ...]:
@@ -41,4 +28,12 @@ def depth_levels(depths_m: Sequence[float], tolerance_m: float) -> tuple[int, ..
     tuple of int
         The level of each depth, in the order given.
     """
-    return _levels(tuple(float(d) for d in depths_m), float(tolerance_m))
+    depths = [float(d) for d in depths_m]
+    order = sorted((d, k) for k, d in enumerate(depths) if math.isfinite(d))
+    levels = [-1] * len(depths)
+    level, last = -1, -math.inf
+    for depth, k in order:
+        if depth - last > tolerance_m:
+            level += 1
+        levels[k], last = level, depth
+    return tuple(levels)

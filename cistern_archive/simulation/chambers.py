@@ -36,6 +36,7 @@ pillars in the chambers, for studies of sites unlike these.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -170,6 +171,11 @@ class Layout:
     rotation_rad: float = 0.0
     outline: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
+    @functools.cached_property
+    def site_ring(self) -> np.ndarray:
+        """The closed wall outline in the site's own frame (:func:`outline`; ``outline`` is the map frame's)."""
+        return outline(self.chambers, self.tunnels)
+
     def to_map(self, points: np.ndarray) -> np.ndarray:
         """Points (N, 2) of the site's frame in the map frame (rotated about the origin)."""
         c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
@@ -286,7 +292,7 @@ def random_pillars(rng: np.random.Generator, layout: Layout, settings: Generator
     """Free-standing pillars (site frame), ``settings.pillars`` per chamber as far as they fit: each
     ``PILLAR_CLEARANCE_M`` or more from every wall and other pillar, and clear of the tunnels' mouths
     (as far from a chamber's end walls as from its other walls, plus the opening stations' inset)."""
-    site_ring = outline(layout.chambers, layout.tunnels)
+    site_ring = layout.site_ring
     pillars: list[tuple[np.ndarray, float, np.ndarray]] = []
     for chamber in layout.chambers:
         ring = chamber.ring()
@@ -396,7 +402,7 @@ def plan_stations(rng: np.random.Generator, layout: Layout, n_stations: int,
     ``n_stations`` counts one station per tunnel, however many ``settings.tunnel_station_spacing_m`` puts
     there."""
     spacing = (settings or GeneratorSettings()).tunnel_station_spacing_m
-    site_ring = outline(layout.chambers, layout.tunnels)
+    site_ring = layout.site_ring
     counts = station_counts(rng, layout.chambers, n_stations)
     connectors = [[_connector(rng, tunnel, k)] if spacing is None else _tunnel_survey(tunnel, k, spacing)
                   for k, tunnel in enumerate(layout.tunnels)]
@@ -480,7 +486,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     returned = rng.spawn(1)[0] if settings.return_to_start else None  # its draws: a generator of its own
     back = None
     if returned is not None:
-        back = _chamber_stations(returned, layout.chambers[0], outline(layout.chambers, layout.tunnels), 1, "r",
+        back = _chamber_stations(returned, layout.chambers[0], layout.site_ring, 1, "r",
                                  [s.xy for s in planned], pillars)[0]
         planned.append(back)
         xy = np.vstack([xy, layout.to_map(back.xy[None])])

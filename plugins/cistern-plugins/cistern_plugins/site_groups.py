@@ -354,9 +354,8 @@ FITS = ContentCache()
 """Group fits already computed (site-graph solves the same groups again in every round)."""
 
 
-def level_members(graph: Graph, scans: Sequence[RangeScan], g: int, depth_of: int, p: SiteGraphParams) -> list[int]:
-    """The scans of group ``g`` at the depth level of scan ``depth_of``."""
-    levels = scan_levels(scans, p)
+def level_members(graph: Graph, levels: Sequence[int], g: int, depth_of: int) -> list[int]:
+    """The scans of group ``g`` at the depth level of scan ``depth_of`` (``levels``: :func:`scan_levels`)."""
     return [k for k in graph.members(g) if same_level(levels, k, depth_of)]
 
 
@@ -431,7 +430,7 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                     far_apart += [(k, why) for k in members[small]]
                     continue
                 probe = members[small][0]
-                a, b = level_members(graph, scans, big, probe, p), level_members(graph, scans, small, probe, p)
+                a, b = level_members(graph, walls.levels, big, probe), level_members(graph, walls.levels, small, probe)
                 if not a or not b:
                     continue
                 fit, spreads = group_fit(scans, graph, a, b, p, digest)
