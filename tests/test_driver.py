@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import socket
 import threading
 import time
@@ -203,18 +204,42 @@ def test_unopenable_port_names_itself():
 
 
 @pytest.mark.parametrize("tcp", [False, True])
+def test_stopping_from_two_threads_at_once_closes_each_descriptor_once(tcp, monkeypatch):
+    """A second close of a descriptor number closes whatever the process opened under it since
+    (seen as a later test's socket failing with EBADF)."""
+    import cistern_archive.acquisition.emulator_server as emulator_server
+
+    closed: list[int] = []
+    real_close = os.close
+    monkeypatch.setattr(emulator_server.os, "close", lambda fd: (closed.append(fd), real_close(fd))[1])
+    real_socket_close = socket.socket.close
+    monkeypatch.setattr(socket.socket, "close",
+                        lambda sock: (closed.append(("socket", id(sock))), real_socket_close(sock))[1])
+    server = build_emulator(echo(), timing=FAST, tcp_port=0 if tcp else None).start()
+    stoppers = [threading.Thread(target=server.stop) for _ in range(4)]
+    for thread in stoppers:
+        thread.start()
+    for thread in stoppers:
+        thread.join()
+    assert closed and len(closed) == len(set(closed))
+
+
+@pytest.mark.parametrize("tcp", [False, True])
 def test_cable_pulled_mid_scan_keeps_the_lines_received(tcp):
     server = build_emulator(echo(), timing=HeadTiming(alive_period=0.2, boot=0.3, realtime=True),
                             tcp_port=0 if tcp else None).start()
     received = []
 
+    stopper = threading.Thread(target=server.stop)
+
     def pull(assembler: ScanAssembler) -> None:
         received.append(assembler.received)
         if assembler.received == 60:
-            threading.Thread(target=server.stop).start()
+            stopper.start()
 
     capture, _ = record_scan(server.url, on_line=pull)
     server.stop()
+    stopper.join()
     assert not capture.complete
     assert capture.error.startswith(server.url) and "link lost" in capture.error
     assert capture.scan is not None and capture.scan.settings["partial"] is True

@@ -35,6 +35,7 @@ class EmulatorServer:
         self.bytes_in = 0
         self.bytes_out = 0
         self._stop = threading.Event()
+        self._closing = threading.Lock()
         self._thread: threading.Thread | None = None
         self._master: int | None = None
         self._slave: int | None = None
@@ -78,20 +79,26 @@ class EmulatorServer:
         return self
 
     def stop(self) -> None:
+        """Stop serving and close the line; safe to call again and from several threads at once.
+
+        Each descriptor is taken under a lock before it is closed, so it is closed exactly once: a
+        second close would hit whatever file the process opened under that number since.
+        """
         self._stop.set()
-        if self._thread is not None:
+        if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
-        for fd in (self._master, self._slave):
+        with self._closing:
+            fds, self._master, self._slave = (self._master, self._slave), None, None
+            socks, self._client, self._listener = (self._client, self._listener), None, None
+        for fd in fds:
             if fd is not None:
                 try:
                     os.close(fd)
                 except OSError:
                     pass
-        self._master = self._slave = None
-        for sock in (self._client, self._listener):
+        for sock in socks:
             if sock is not None:
                 sock.close()
-        self._client = self._listener = None
 
     def __enter__(self) -> "EmulatorServer":
         return self.start()
