@@ -4,6 +4,7 @@ station labels in reasons; the rebuild's summary and exit code."""
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 from pathlib import Path
 
@@ -13,8 +14,9 @@ import numpy as np
 
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
-from cistern_archive.pipeline.status import (MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, chain_breaks,
-                                             label_indices, site_status, skipped_run_caveat, weakness)
+from cistern_archive.pipeline.status import (MAP_HEADING_ERROR_DEG, MAX_JOIN_CI95_M, MAX_PROBE_SHIFT_M,
+                                             MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, chain_breaks, label_indices,
+                                             site_status, skipped_run_caveat, weakness)
 from service_helpers import CLI, make_catalog
 
 
@@ -92,6 +94,14 @@ def test_weak_when_fewer_than_half_the_probes_or_a_wide_spread():
     assert "2 of 10 probes" in weakness(2, 10, 0.05)
     assert f"above {MAX_PROBE_STD_M:.2f} m" in weakness(10, 10, MAX_PROBE_STD_M + 0.01)
     assert weakness(1, 1, None) == ""  # a single requested probe has no spread to judge
+
+
+def test_weak_when_the_probes_lie_far_from_their_frame_station():
+    reach = MAX_PROBE_SHIFT_M / math.tan(math.radians(MAP_HEADING_ERROR_DEG))  # 5.7 m
+    assert weakness(10, 10, 0.05, frame="c1", frame_offset_m=reach - 0.1) == ""
+    far = weakness(10, 10, 0.05, frame="a1", frame_offset_m=13.6)
+    assert "13.6 m from their frame station a1" in far and "moves them 0.47 m across" in far
+    assert "the map's origin" in weakness(10, 10, 0.05, frame_offset_m=13.6)
 
 
 def _room(half_width_m: float, depth_m: float) -> EvidenceGrid:
@@ -187,3 +197,31 @@ def test_build_site_announces_each_stage(partial_catalog):
     stages: list[str] = []
     build_site(load_record(partial_catalog / "sites" / "cistern-000.yaml", partial_catalog), on_stage=stages.append)
     assert stages == ["configure", "load", "segment", "match", "localize", "map", "compare", "mesh"]
+
+
+def test_a_probe_given_far_from_its_chamber_is_weak_and_one_given_nearby_is_right():
+    """The bundled three-chamber cistern's chamber C length, probed from c1 (its own chamber) as the record
+    gives it, and from a1, 13.6 m west: there the map's compass bias (2°) moves the probes onto a corner."""
+    import dataclasses
+
+    from cistern_archive.catalog.loader import load_record
+    from cistern_archive.pipeline.runner import build_site
+
+    catalog = Path(__file__).resolve().parents[1] / "catalog"
+    loaded = load_record(catalog / "sites" / "three-chambers.yaml", catalog)
+    truth = {s["station"]: (s["x_m"], s["y_m"]) for s in json.loads(
+        (catalog / "data" / "three-chambers" / "truth.json").read_text())["stations"]}
+    c1, a1 = np.array(truth["c1"]), np.array(truth["a1"])
+
+    def length(record):
+        rows = build_site(dataclasses.replace(loaded, record=record)).result.dimensions
+        return next(d for d in rows if d.name == "length" and d.reference_kind == "truth")
+
+    near = length(loaded.record)
+    assert not near.weak and abs(near.map_m - near.reference_m) < 0.05
+    far_refs = [r.model_copy(update={"measure": r.measure.model_copy(update={
+        "frame": "a1", "inside": tuple(np.round(np.array(r.measure.inside) + c1 - a1, 3))})})
+        if r.name == "length" else r for r in loaded.record.references]
+    far = length(loaded.record.model_copy(update={"references": far_refs}))
+    assert far.weak and "from their frame station a1" in far.weak_reason
+    assert abs(far.map_m - far.reference_m) > abs(near.map_m - near.reference_m)
