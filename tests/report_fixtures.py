@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cistern_archive.catalog.models import Probe, ReferenceDimension, SiteRecord
+from cistern_archive.catalog.models import SiteRecord
 from cistern_archive.pipeline.contracts import (
     DimensionRow,
     DimensionTable,
@@ -248,9 +248,7 @@ def make_site_build(
                            yaw_rad=0.0, depth_m=1.5, placed=bool(placed[k]), reason=reasons[k],
                            truth_x_m=float(truth_d[k, 0]), truth_y_m=float(truth_d[k, 1])) for k in range(n)]
     labels = [s.id for s in scans_json]
-    references = [ReferenceDimension(name=r.name, value_m=r.reference_m, kind=r.reference_kind, measure=Probe(repeats=10))
-                  for r in rows]
-    dimensions = [dimension_result(r, ref, labels, cell_m=CELL_M, poses=poses) for r, ref in zip(rows, references)]
+    dimensions = [dimension_result(r, 10, labels, cell_m=CELL_M, poses=poses) for r in rows]
     status, status_reasons = site_status(failed_stage=None, scans_placed=list(placed), labels=labels, unmeasured=[])
     result = SiteResult(
         site_id=site_id, name=name, status=status, status_reasons=status_reasons, scans=scans_json,

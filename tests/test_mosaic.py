@@ -159,3 +159,15 @@ def test_probe_through_a_gap_is_dropped_with_a_note():
     assert "outliers" in row.note
     (raw,) = MosaicComparator().compare(grid, poses, ref, STATIONS, MosaicParams(edge="inner", reject_outliers=False)).rows
     assert raw.map_m > row.map_m
+
+
+def test_heading_check_is_small_on_square_walls_and_large_where_a_turn_runs_the_probe_into_a_wall(pool):
+    """Turning a pool's probes 2° about their station barely changes them (walls square to the probes); a
+    length probe 0.1 m from the side wall runs into it when turned (7.2 m × tan 2° = 0.25 m across)."""
+    map_result, poses = pool
+    square = MosaicComparator().compare(map_result, poses, refs(), STATIONS, MosaicParams())
+    assert all(0 <= row.heading_shift_m < 0.05 for row in square.rows)
+    hugging = [ReferenceDimension(name="length along the wall", value_m=L, kind="truth", measure=Probe(
+        frame="s1", inside=(L / 2 - 1.25, W - 0.1 - 1.7), direction_deg=0.0, repeats=1))]
+    row = MosaicComparator().compare(map_result, poses, hugging, STATIONS, MosaicParams()).rows[0]
+    assert abs(row.map_m - L) < 0.1 and row.heading_shift_m > 1.0

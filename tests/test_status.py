@@ -14,9 +14,9 @@ import numpy as np
 
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
-from cistern_archive.pipeline.status import (MAP_HEADING_ERROR_DEG, MAX_JOIN_CI95_M, MAX_PROBE_SHIFT_M,
-                                             MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG, chain_breaks, label_indices,
-                                             site_status, skipped_run_caveat, weakness)
+from cistern_archive.pipeline.status import (MAX_HEADING_SHIFT_M, MAX_JOIN_CI95_M, MAX_PROBE_STD_M,
+                                             MAX_WALL_LEAN_DEG, chain_breaks, label_indices, site_status,
+                                             skipped_run_caveat, weakness)
 from service_helpers import CLI, make_catalog
 
 
@@ -96,12 +96,11 @@ def test_weak_when_fewer_than_half_the_probes_or_a_wide_spread():
     assert weakness(1, 1, None) == ""  # a single requested probe has no spread to judge
 
 
-def test_weak_when_the_probes_lie_far_from_their_frame_station():
-    reach = MAX_PROBE_SHIFT_M / math.tan(math.radians(MAP_HEADING_ERROR_DEG))  # 5.7 m
-    assert weakness(10, 10, 0.05, frame="c1", frame_offset_m=reach - 0.1) == ""
-    far = weakness(10, 10, 0.05, frame="a1", frame_offset_m=13.6)
-    assert "13.6 m from their frame station a1" in far and "moves them 0.47 m across" in far
-    assert "the map's origin" in weakness(10, 10, 0.05, frame_offset_m=13.6)
+def test_weak_when_a_compass_bias_of_the_map_would_change_it():
+    assert weakness(10, 10, 0.05, heading_shift_m=MAX_HEADING_SHIFT_M - 0.01) == ""
+    far = weakness(10, 10, 0.05, heading_shift_m=0.94)
+    assert "2° of compass bias would change it by 0.94 m" in far
+    assert "more than its probes can tell" in weakness(10, 10, 0.05, heading_shift_m=math.inf)
 
 
 def _room(half_width_m: float, depth_m: float) -> EvidenceGrid:
@@ -223,5 +222,5 @@ def test_a_probe_given_far_from_its_chamber_is_weak_and_one_given_nearby_is_righ
         "frame": "a1", "inside": tuple(np.round(np.array(r.measure.inside) + c1 - a1, 3))})})
         if r.name == "length" else r for r in loaded.record.references]
     far = length(loaded.record.model_copy(update={"references": far_refs}))
-    assert far.weak and "from their frame station a1" in far.weak_reason
+    assert far.weak and "2° of compass bias would change it" in far.weak_reason
     assert abs(far.map_m - far.reference_m) > abs(near.map_m - near.reference_m)

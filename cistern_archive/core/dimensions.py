@@ -7,6 +7,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+HEADING_TURN_DEG = 2.0
+"""The turn of the whole map a dimension is checked against: the map's north is the compasses', and a
+compass bias of a degree or two is common (the simulated sites draw theirs from ±2°). The record gives a
+probe as an offset from a station, so the map places it turned by that bias about the station: a probe
+whose ends lie far from it, on walls oblique to it or beside a corner or an opening, measures elsewhere
+than the team did."""
+
+
 @dataclass(frozen=True)
 class DimensionRow:
     """One measured dimension against its reference (the paper's Table IV, one cell pair).
@@ -24,6 +32,9 @@ class DimensionRow:
     probes: tuple[float, ...] = ()
     probe_lines: tuple[tuple[float, float, float, float], ...] = ()
     note: str = ""
+    heading_shift_m: float = float("nan")
+    """How much ``map_m`` changes when the probes turn by :data:`HEADING_TURN_DEG` either way about the
+    station they are given from (``nan`` when the comparator does not say)."""
 
     @property
     def probe_std_m(self) -> float:

@@ -11,7 +11,7 @@ import numpy as np
 
 from cistern_archive import __version__
 from cistern_archive.catalog.loader import LoadedRecord
-from cistern_archive.catalog.models import ReferenceDimension, ScanRef, SiteRecord
+from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
 from cistern_archive.pipeline.contracts import DimensionRow, MatchGuess, Poses
@@ -77,7 +77,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
     ]
     if build.table is not None:
         grids = build.map_result.grids if build.map_result is not None else ()
-        result.dimensions = [dimension_result(row, _reference_of(record, k, row), labels,
+        result.dimensions = [dimension_result(row, _requested_probes(record, k, row), labels,
                                               cell_m=_cell_at(build, row.depth_m), poses=poses, grids=grids)
                              for k, row in enumerate(build.table.rows)]
         result.dimension_stats = {k: finite_or_none(v) for k, v in sorted(build.table.stats.items())}
@@ -114,36 +114,33 @@ def scan_entries(build: SiteBuild) -> list[ScanRef]:
             for scan, file in zip(build.range_scans, build.scan_files)]
 
 
-def _reference_of(record: SiteRecord, k: int, row: DimensionRow) -> ReferenceDimension | None:
-    """The reference of the ``k``-th row (by position when it matches, else by name and kind; ``None``
-    when no reference matches)."""
+def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
+    """How many probes the record asked for the ``k``-th row (by position when it matches the
+    reference, else by name and kind; 0 when no reference matches)."""
     refs = record.references
     if k < len(refs) and refs[k].name == row.name and refs[k].kind == row.reference_kind:
-        return refs[k]
-    return next((r for r in refs if r.name == row.name and r.kind == row.reference_kind), None)
+        return refs[k].measure.repeats
+    same = [r for r in refs if r.name == row.name and r.kind == row.reference_kind]
+    return same[0].measure.repeats if same else 0
 
 
-def dimension_result(row: DimensionRow, reference: ReferenceDimension | None, labels: Sequence[str], *,
-                     cell_m: float | None = None, poses: Poses | None = None,
-                     grids: Sequence[EvidenceGrid] = ()) -> DimensionResult:
+def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *, cell_m: float | None = None,
+                     poses: Poses | None = None, grids: Sequence[EvidenceGrid] = ()) -> DimensionResult:
     """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`,
-    with the probes the row's ``reference`` asked for, how far from their frame station they lie and the
-    lean of its walls between the depth slices ``grids``) and with its 95 % interval
+    with the lean of its walls between the depth slices ``grids`` and the comparator's heading check) and with its 95 % interval
     (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of ``cell_m``) when it is
     measured."""
     map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
     lines = [line for line in row.probe_lines if line is not None]
-    requested = reference.measure.repeats if reference is not None else 0
-    probe = reference.measure if reference is not None and reference.measure.method == "probe" else None
-    weak = "" if map_m is None else weakness(
-        len(row.probes), requested, std, wall_lean_deg(grids, row.depth_m, lines),
-        frame=None if probe is None else probe.frame,
-        frame_offset_m=None if probe is None else math.hypot(*probe.inside))
+    weak = "" if map_m is None else weakness(len(row.probes), requested, std,
+                                             wall_lean_deg(grids, row.depth_m, lines),
+                                             heading_shift_m=None if math.isnan(row.heading_shift_m) else row.heading_shift_m)
     ci = None if map_m is None or cell_m is None else ci95_half_width(row.probes, cell_m, lines, poses)
     return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
                            reference_kind=row.reference_kind, diff_m=finite_or_none(row.diff_m),
                            depth_m=finite_or_none(row.depth_m) or 0.0, probe_std_m=std,
                            probes_m=[float(p) for p in row.probes], probes_requested=requested,
+                           heading_shift_m=finite_or_none(row.heading_shift_m),
                            weak=bool(weak), weak_reason=weak, note=label_indices(row.note, labels))
 
 

@@ -79,8 +79,11 @@ class DimensionResult(Model):
     probe_std_m: float | None = None
     probes_m: list[float] = Field(default_factory=list)
     probes_requested: int = Field(default=0, description="probes the record asked for (0: not known)")
-    weak: bool = Field(default=False, description="too few probes or too wide a spread to trust "
-                                                  "(cistern_archive.pipeline.status)")
+    heading_shift_m: float | None = Field(default=None, description="how much map_m changes when its probes "
+                                          "turn 2° about the station they are given from (a compass bias "
+                                          "of the whole map; None: not checked)")
+    weak: bool = Field(default=False, description="too few probes, too wide a spread, leaning walls or too "
+                                                  "large a heading shift to trust (cistern_archive.pipeline.status)")
     weak_reason: str = ""
     note: str = ""
 

@@ -15,9 +15,9 @@ A measured dimension is *weak* when it rests on fewer than :data:`MIN_PROBE_FRAC
 record asked for, or when its probes spread (sample standard deviation) by more than
 :data:`MAX_PROBE_STD_M`: the probes then cross different walls (gaps, sloping or irregular walls) and
 their mean is not one wall-to-wall distance; or when, on a site mapped at several depths, its walls
-lean more than :data:`MAX_WALL_LEAN_DEG` from the vertical; or when its probes lie so far from the
-station they are given from that a compass bias of the whole map moves them across by more than
-:data:`MAX_PROBE_SHIFT_M`. Weak dimensions do not change the status; they are flagged in every table and
+lean more than :data:`MAX_WALL_LEAN_DEG` from the vertical; or when a compass bias of the whole map
+(its probes turned 2° about the station they are given from) would change it by more than
+:data:`MAX_HEADING_SHIFT_M`. Weak dimensions do not change the status; they are flagged in every table and
 in ``result.json``.
 
 Reasons speak of stations by their labels: :func:`label_indices` rewrites the 0-based scan indices that
@@ -31,6 +31,8 @@ import re
 from collections.abc import Sequence
 from itertools import groupby
 from typing import Literal
+
+from cistern_archive.core.dimensions import HEADING_TURN_DEG
 
 SiteStatus = Literal["ok", "partial", "failed"]
 
@@ -46,17 +48,14 @@ cistern (a 35° vertical beam), before the mapper corrected echoes for the lean
 intervals; the one between walls leaning 45° came out 0.30 m (7.8 %) short, outside its interval. The
 correction rests on the lean read between the slices, so such a dimension stays weak."""
 
-MAP_HEADING_ERROR_DEG = 2.0
-"""The heading error a map may carry as a whole: its north is the compasses' north, and a compass bias of
-a degree or two is common (the simulated sites draw theirs from ±2°). A probe given ``d`` metres from its
-frame station lands about ``d tan 2°`` across from where the same offset lies on the site itself."""
-MAX_PROBE_SHIFT_M = 0.20
-"""A dimension whose probes that heading error would move more than this across (``d tan 2°``: probes
-more than 5.7 m from their frame station) is weak; the same limit as :data:`MAX_PROBE_STD_M`. On the
-bundled three-chamber cistern a length probed 13.6 m from its frame station came out 0.19 m (3.6 %)
-short, its probes shifted 0.47 m onto a corner; probed from a station of its own chamber, 0.005 m."""
-MAX_FRAME_OFFSET_M = MAX_PROBE_SHIFT_M / math.tan(math.radians(MAP_HEADING_ERROR_DEG))
-"""Probes farther than this (5.7 m) from their frame station make a dimension weak (:data:`MAX_PROBE_SHIFT_M`)."""
+MAX_HEADING_SHIFT_M = MAX_PROBE_STD_M
+"""A dimension that changes by more than this (0.20 m, the limit of the probes' spread) when its probes
+turn 2° about the station they are given from (:attr:`~cistern_archive.core.dimensions.DimensionRow.heading_shift_m`:
+a compass bias of the whole map) is weak. On the bundled three-chamber cistern a length probed from a
+station 13.6 m away came out 0.19 m (3.6 %) short, its probes on a corner, and turning them 2° changed it
+by 0.94 m; probed from a station of its own chamber it came out 0.005 m off, and turning changed it by
+0.012 m. The water gallery's first reach (probes ending on the diagonal wall of a bend) changes by
+0.68 m; the other demo dimensions by 0.009–0.13 m."""
 
 MAX_JOIN_CI95_M = 0.25
 """A join of two parts of the map whose 95 % half-width (along its least certain direction) exceeds this
@@ -93,12 +92,8 @@ def label_indices(text: str, labels: Sequence[str]) -> str:
 
 
 def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_lean_deg: float | None = None,
-             *, frame: str | None = None, frame_offset_m: float | None = None) -> str:
-    """Why a measured dimension is weak (see the module docstring), or ``""`` when it is not.
-
-    ``frame_offset_m`` is how far the probes' centre lies from their ``frame`` station (or from the map's
-    origin when ``frame`` is ``None``); beyond :data:`MAX_FRAME_OFFSET_M` a weakness.
-    """
+             *, heading_shift_m: float | None = None) -> str:
+    """Why a measured dimension is weak (see the module docstring), or ``""`` when it is not."""
     reasons = []
     if n_requested > 1 and n_probes < MIN_PROBE_FRACTION * n_requested:
         reasons.append(f"measured on {n_probes} of {n_requested} probes (fewer than half)")
@@ -109,12 +104,12 @@ def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_le
                        f"(above {MAX_WALL_LEAN_DEG:.0f}°): "
                        "the sonar's tall vertical beam hears a leaning wall nearer than it is, by an amount "
                        "that depends on the lean")
-    if frame_offset_m is not None and frame_offset_m > MAX_FRAME_OFFSET_M:
-        shift = frame_offset_m * math.tan(math.radians(MAP_HEADING_ERROR_DEG))
-        origin = f"their frame station {frame}" if frame else "the map's origin"
-        reasons.append(f"its probes lie {frame_offset_m:.1f} m from {origin}: an error of "
-                       f"{MAP_HEADING_ERROR_DEG:.0f}° in the map's heading (a compass bias) moves them {shift:.2f} m "
-                       "across, so give them from a station nearer the walls measured")
+    if heading_shift_m is not None and heading_shift_m > MAX_HEADING_SHIFT_M:
+        reasons.append(f"{HEADING_TURN_DEG:.0f}° of compass bias would change it by "
+                       + (f"{heading_shift_m:.2f} m" if math.isfinite(heading_shift_m) else "more than its probes can tell")
+                       + f" (above {MAX_HEADING_SHIFT_M:.2f} m): its probes, given from a station, end far from "
+                       "it on walls oblique to them or beside a corner or an opening; give them from a station "
+                       "nearer the walls measured")
     return "; ".join(reasons)
 
 

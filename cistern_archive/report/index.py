@@ -14,7 +14,7 @@ import numpy as np
 
 from cistern_archive import __version__
 from cistern_archive.pipeline.results import DimensionResult, SiteResult, TrackSummary
-from cistern_archive.pipeline.status import MAX_FRAME_OFFSET_M, MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
+from cistern_archive.pipeline.status import MAX_HEADING_SHIFT_M, MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
 from cistern_archive.report.config import ReportConfig
 from cistern_archive.report.files import build_time_from_env, format_time
 from cistern_archive.report.html import STATUS_TEXT, number, probe_count, render_index_page, signed, with_interval
@@ -190,8 +190,8 @@ def summary_figures(entries: Sequence[IndexEntry]) -> list[dict[str, str]]:
         figures.append({"label": "Weak dimensions", "value": f"{weak} of {len(shown)}",
                         "explanation": "measured on fewer than half of their probes, with a probe spread "
                                        f"above {MAX_PROBE_STD_M:.2f} m, between walls leaning more than "
-                                       f"{MAX_WALL_LEAN_DEG:.0f}° or probed more than {MAX_FRAME_OFFSET_M:.1f} m "
-                                       "from their station: read them with care"})
+                                       f"{MAX_WALL_LEAN_DEG:.0f}° or changed by more than {MAX_HEADING_SHIFT_M:.2f} m by 2° "
+                                       "of compass bias: read them with care"})
     return figures
 
 
@@ -254,7 +254,7 @@ def render_index(
         summary_figures=summary_figures(entries),
         weak_threshold=f"{MAX_PROBE_STD_M:.2f}",
         lean_threshold=f"{MAX_WALL_LEAN_DEG:.0f}",
-        frame_reach=f"{MAX_FRAME_OFFSET_M:.1f}",
+        heading_threshold=f"{MAX_HEADING_SHIFT_M:.2f}",
         join_threshold=f"{MAX_JOIN_CI95_M:.2f}",
         track_columns=TRACK_COLUMNS,
         track_rows=track_table(entries),

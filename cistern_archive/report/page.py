@@ -11,7 +11,7 @@ from cistern_archive.core.scan import compass_deg_from_yaw
 from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.pipeline.export import diff_percent
 from cistern_archive.pipeline.results import SiteBuild, SiteResult
-from cistern_archive.pipeline.status import MAX_FRAME_OFFSET_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
+from cistern_archive.pipeline.status import MAX_HEADING_SHIFT_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
 from cistern_archive.report import viewer
 from cistern_archive.report.canvas import FigureFile
 from cistern_archive.report.files import build_time_from_env, format_time, unique_slugs
@@ -201,7 +201,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "status_text": status_text,
         "weak_threshold": f"{MAX_PROBE_STD_M:.2f}",
         "lean_threshold": f"{MAX_WALL_LEAN_DEG:.0f}",
-        "frame_reach": f"{MAX_FRAME_OFFSET_M:.1f}",
+        "heading_threshold": f"{MAX_HEADING_SHIFT_M:.2f}",
         "ids": ids,
         "sections": sections,
         "location": location_text(build.record),

@@ -23,6 +23,13 @@ Probe (``method="probe"``)
     rotation. ``frame_rotation="yaw"`` rotates both by the station's heading instead (a probe drawn in
     the vehicle's own frame). Without ``frame`` the point is in the map frame (the reference scan at 0).
 
+    **Heading check.** The map's north is the compasses', off by their common bias, so the map places a
+    probe turned by that bias about its station. Each probe is measured again turned by
+    ``HEADING_TURN_DEG`` (2°) either way about its station (the map's origin without ``frame``), and the
+    larger change of the value is the row's ``heading_shift_m``: small where the probes end on walls
+    square to them, large where they end far from the station on oblique walls, at a corner or an
+    opening (the report flags such a dimension weak, :func:`cistern_archive.pipeline.status.weakness`).
+
 Automatic (``method="auto-width"`` / ``"auto-length"``)
     For rectangular sites: the principal axes of the occupied cells give the site's directions; the
     minor axis is the width, the major the length. The probes start at the centroid of the occupied
@@ -40,11 +47,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
+from cistern_archive.core.dimensions import HEADING_TURN_DEG
 from cistern_archive.pipeline.contracts import DimensionRow, DimensionTable, EvidenceGrid, MapResult, Poses, StageParams
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -130,7 +139,25 @@ def _measure(
         start, major = axes
         angle = major if probe.method == "auto-length" else major + math.pi / 2
     values, lines = repeated_probes(grid, occupied, start, angle, probe.repeats, probe.spacing_m, p)
-    return _row(ref, grid.depth_m, values, lines, "", p)
+    row = _row(ref, grid.depth_m, values, lines, "", p)
+    if probe.method != "probe" or not math.isfinite(row.map_m):
+        return row  # automatic axes come from the map itself, not from a station
+    pivot = poses.xy_m[station_index[probe.frame]] if probe.frame is not None else np.zeros(2)
+    turned = [_row(ref, grid.depth_m, repeated_probes(grid, occupied, *turn_about(pivot, start, angle, sign * HEADING_TURN_DEG),
+                                                      probe.repeats, probe.spacing_m, p)[0], [], "", p).map_m
+              for sign in (-1.0, 1.0)]
+    shift = max((abs(v - row.map_m) for v in turned if math.isfinite(v)), default=math.inf)
+    return replace(row, heading_shift_m=shift)
+
+
+def turn_about(pivot: np.ndarray, start: np.ndarray, angle: float, turn_deg: float) -> tuple[np.ndarray, float]:
+    """A probe's start point and direction (rad) turned by ``turn_deg`` about ``pivot``: where the map puts
+    a probe given from the station at ``pivot`` when the map's heading is off by that much
+    (:data:`~cistern_archive.core.dimensions.HEADING_TURN_DEG`)."""
+    turn = math.radians(turn_deg)
+    c, s = math.cos(turn), math.sin(turn)
+    offset = np.asarray(start, dtype=np.float64) - pivot
+    return pivot + np.array([c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]]), angle + turn
 
 
 def pick_grid(map_result: MapResult, depth_m: float | None) -> EvidenceGrid | None:
