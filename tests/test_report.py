@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import shutil
 import struct
@@ -440,7 +441,7 @@ def test_dimensions_carry_a_95_percent_interval(catalog):
     assert f"{width['map_m']:.3f} ± {width['ci95_m']:.3f}" in html
 
 
-def test_interval_combines_spread_cell_and_pose():
+def test_interval_combines_spread_cell_pose_and_heading():
     from cistern_archive.pipeline.intervals import ci95_half_width, pose_term
 
     assert ci95_half_width([3.5], 0.05) == pytest.approx(1.959964 * 0.05 / 6 ** 0.5)
@@ -453,6 +454,9 @@ def test_interval_combines_spread_cell_and_pose():
     assert pose_term(across, poses) == pytest.approx(1.959964 * (2 * 0.02 ** 2) ** 0.5)
     assert pose_term([(-0.2, 0.0, 0.3, 0.0)], poses) == 0.0  # one scan saw both walls
     assert pose_term(across, Poses(poses.xy_m, poses.yaw_rad, poses.placed, poses.reasons, 0)) == 0.0
+    cell = ci95_half_width([3.5], 0.05)
+    assert ci95_half_width([3.5], 0.05, heading_shift_m=0.3) == pytest.approx((cell ** 2 + 0.3 ** 2) ** 0.5)
+    assert ci95_half_width([3.5], 0.05, heading_shift_m=math.inf) == pytest.approx(cell)  # flagged weak instead
 
 
 def test_plan_round_trips_through_dxf_and_svg(catalog):

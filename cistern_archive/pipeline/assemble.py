@@ -132,10 +132,10 @@ def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *
     measured."""
     map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
     lines = [line for line in row.probe_lines if line is not None]
+    shift = None if math.isnan(row.heading_shift_m) else row.heading_shift_m
     weak = "" if map_m is None else weakness(len(row.probes), requested, std,
-                                             wall_lean_deg(grids, row.depth_m, lines),
-                                             heading_shift_m=None if math.isnan(row.heading_shift_m) else row.heading_shift_m)
-    ci = None if map_m is None or cell_m is None else ci95_half_width(row.probes, cell_m, lines, poses)
+                                             wall_lean_deg(grids, row.depth_m, lines), heading_shift_m=shift)
+    ci = None if map_m is None or cell_m is None else ci95_half_width(row.probes, cell_m, lines, poses, shift)
     return DimensionResult(name=row.name, map_m=map_m, ci95_m=ci, reference_m=row.reference_m,
                            reference_kind=row.reference_kind, diff_m=finite_or_none(row.diff_m),
                            depth_m=finite_or_none(row.depth_m) or 0.0, probe_std_m=std,

@@ -1,7 +1,7 @@
 """95 % intervals of the map's dimensions.
 
 A dimension is the mean of ``n`` parallel probes drawn wall to wall in an evidence grid of cell size
-``c``, between walls seen from scans whose placement the localizer may give an uncertainty for. Three
+``c``, between walls seen from scans whose placement the localizer may give an uncertainty for. Four
 independent sources are combined in quadrature:
 
 * **probe spread**: the standard error of the mean of the probes, ``t(0.975, n − 1) · s / √n`` (Student's
@@ -11,7 +11,13 @@ independent sources are combined in quadrature:
 * **pose**: the scans nearest to the two ends of the probes saw the two walls; when they differ, their
   position covariances (``Poses.covariance``, e.g. from the ``pose-graph`` localizer) projected on the
   probe direction add ``1.96 · √(uᵀ(Σ_a + Σ_b)u)``; one scan seeing both walls moves them together and
-  adds nothing. Localizers without covariances (``wls``) add nothing here.
+  adds nothing. Localizers without covariances (``wls``) add nothing here;
+* **heading**: the map's north is the compasses', off by their common bias, and the record gives the
+  probes from a station, so the map measures them turned by that bias about the station. The comparator
+  measures them again turned 2° either way (``DimensionRow.heading_shift_m``, a compass bias of 2° taken
+  as the 95 % bound) and the larger change is the term; it is small where the probes end on walls square
+  to them and large where they end far from the station on oblique walls or beside a corner. A
+  comparator that does not say adds nothing.
 
 ``ci95_m`` is the half-width: the dimension is shown as ``3.47 ± 0.06 m``. How often these intervals
 hold the true value on simulated sites is measured by ``benchmarks/intervals.py``.
@@ -64,7 +70,15 @@ def pose_term(lines: Sequence[tuple[float, float, float, float]], poses: Poses |
     return Z95 * math.sqrt(variance) if math.isfinite(variance) and variance > 0 else 0.0
 
 
+def heading_term(heading_shift_m: float | None) -> float:
+    """The change of the dimension under 2° of compass bias (0 when unknown or not finite: a probe that
+    finds no wall once turned is flagged weak instead, :func:`cistern_archive.pipeline.status.weakness`)."""
+    return heading_shift_m if heading_shift_m is not None and math.isfinite(heading_shift_m) else 0.0
+
+
 def ci95_half_width(probes: Sequence[float], cell_m: float,
-                    lines: Sequence[tuple[float, float, float, float]] = (), poses: Poses | None = None) -> float:
+                    lines: Sequence[tuple[float, float, float, float]] = (), poses: Poses | None = None,
+                    heading_shift_m: float | None = None) -> float:
     """Half-width of the 95 % interval of a dimension (see the module docstring)."""
-    return float(math.sqrt(spread_term(probes) ** 2 + cell_term(cell_m) ** 2 + pose_term(lines, poses) ** 2))
+    terms = (spread_term(probes), cell_term(cell_m), pose_term(lines, poses), heading_term(heading_shift_m))
+    return float(math.sqrt(sum(term ** 2 for term in terms)))

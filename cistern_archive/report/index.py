@@ -124,8 +124,9 @@ MOSAIC_COLUMNS = (
 )
 COMMON_COLUMNS = (
     TableColumn("map", "Map (m)", "mean of the probe lines measured wall to wall in the evidence grid, "
-                                  "± the half-width of its 95 % interval (probe spread, grid cell and, where "
-                                  "the localizer gives it, the pose uncertainty of the scans that saw the walls)"),
+                                  "± the half-width of its 95 % interval (probe spread, grid cell, where "
+                                  "the localizer gives it the pose uncertainty of the scans that saw the walls, "
+                                  "and the map's heading: the probes turned 2° about their station)"),
 )
 TAIL_COLUMNS = (
     TableColumn("probes", "Probes", "probes the value rests on, of those the record asked for"),
