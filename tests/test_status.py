@@ -224,3 +224,13 @@ def test_a_probe_given_far_from_its_chamber_is_weak_and_one_given_nearby_is_righ
     far = length(loaded.record.model_copy(update={"references": far_refs}))
     assert far.weak and "2° of compass bias would change it" in far.weak_reason
     assert abs(far.map_m - far.reference_m) > abs(near.map_m - near.reference_m)
+
+
+def test_a_station_held_only_by_loop_closures_is_a_caveat_only_where_some_station_is_unplaced():
+    held = [("r1", ["b1", "b2"])]
+    status, reasons = site_status(failed_stage=None, scans_placed=[False, True, True, True], unmeasured=[],
+                                  labels=["a1", "b1", "b2", "r1"], loop_only=held)
+    assert status == "partial" and any(r.startswith("r1 is held in place only by matches to b1, b2") for r in reasons)
+    status, reasons = site_status(failed_stage=None, scans_placed=[True] * 4, unmeasured=[],
+                                  labels=["a1", "b1", "b2", "r1"], loop_only=held)
+    assert status == "ok" and reasons == []

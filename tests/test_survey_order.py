@@ -77,3 +77,22 @@ def test_reasons_naming_scans_of_the_survey_order_come_back_as_station_labels():
     back = survey.poses_back(solved)
     assert back.reasons[2] == "no converged path to reference scan s1: (s4 → s5): ambiguous"  # s5 is listed third
     assert not back.placed[2] and back.reference == 1
+
+
+def test_a_scan_held_only_by_matches_to_scans_recorded_apart_from_it_is_found():
+    """s5 (recorded last) joined only to s1 and s2, a loop closure; s3 and s4 (recorded before it) joined
+    to their neighbours in time; a match the solution disagrees with holds nothing."""
+    from cistern_archive.pipeline.support import held_by_loops_only, holding_matches
+
+    scans = _scans(TIMES)
+    record = {f"s{v + 1}": k for k, v in enumerate(LISTED)}  # station -> index in the list
+    xy = np.array([TRUTH[v] for v in LISTED])
+    poses = Poses(xy, np.zeros(5), np.ones(5, dtype=bool), ("",) * 5, record["s1"])
+    links = [("s1", "s2"), ("s2", "s3"), ("s3", "s4"), ("s5", "s1"), ("s2", "s5")]
+    matches = [_match(record[a], record[b]) for a, b in links]
+    wrong = _match(record["s4"], record["s5"])
+    matches.append(replace(wrong, dx_m=wrong.dx_m + 1.0))  # 1 m off the solution: holds nothing
+    assert holding_matches(matches, poses)[record["s5"]] == {record["s1"], record["s2"]}
+    assert held_by_loops_only(scans, matches, poses) == [(record["s5"], sorted([record["s1"], record["s2"]]))]
+    matches.append(_match(record["s4"], record["s5"]))  # now its predecessor in time holds it too
+    assert held_by_loops_only(scans, matches, poses) == []

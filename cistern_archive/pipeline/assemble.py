@@ -28,6 +28,7 @@ from cistern_archive.pipeline.results import (
     track_summary,
 )
 from cistern_archive.pipeline.status import label_indices, site_status, weakness
+from cistern_archive.pipeline.support import held_by_loops_only
 
 
 def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[PluginProvenance],
@@ -83,9 +84,12 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
         result.dimension_stats = {k: finite_or_none(v) for k, v in sorted(build.table.stats.items())}
     if build.map_result is not None:
         result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
+    loop_only = [] if poses is None or record.survey is not None else [  # a survey's navigation holds its scans
+        (labels[k], [labels[j] for j in others]) for k, others in held_by_loops_only(build.range_scans, build.matches, poses)]
     result.status, result.status_reasons = site_status(
         failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
-        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [], joins=links)
+        unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [], joins=links,
+        loop_only=loop_only)
     result.track = None if build.track is None else track_summary(build.track)
     result.timings_s = dict(timings)
     result.timings_s["total"] = round(sum(timings.values()), 6)

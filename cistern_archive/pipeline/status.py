@@ -114,8 +114,8 @@ def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_le
 
 
 def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], labels: Sequence[str],
-                unmeasured: Sequence[str], joins: Sequence[tuple[str, str, float | None]] = ()
-                ) -> tuple[SiteStatus, list[str]]:
+                unmeasured: Sequence[str], joins: Sequence[tuple[str, str, float | None]] = (),
+                loop_only: Sequence[tuple[str, Sequence[str]]] = ()) -> tuple[SiteStatus, list[str]]:
     """The status of a site build and the reasons it is not ``ok``.
 
     Parameters
@@ -131,6 +131,10 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
     joins : sequence of (str, str, float or None)
         The stations of each join of groups fitted as wholes with its 95 % half-width in metres
         (``None`` when the localizer gave none); :func:`imprecise_joins` says which are reasons.
+    loop_only : sequence of (str, sequence of str)
+        Placed stations held in place only by matches to stations recorded apart from them, each with
+        those stations (:func:`cistern_archive.pipeline.support.held_by_loops_only`); where some station
+        is unplaced, each is a caveat (:func:`loop_only_caveat`).
 
     Returns
     -------
@@ -148,6 +152,7 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
         unplaced = [labels[k] for k, p in enumerate(scans_placed) if not p]
         reasons.append(f"{len(unplaced)} of {len(scans_placed)} scans not placed ({', '.join(unplaced)})"
                        + "".join(f". {hint}" for hint in chain_breaks(scans_placed, labels)))
+        reasons += [loop_only_caveat(station, others) for station, others in loop_only]
     if failed_stage is None and n_placed > 0:
         reasons += [f"dimension not measured: {text}" for text in unmeasured]
         reasons += imprecise_joins(joins)
@@ -181,6 +186,14 @@ def chain_breaks(scans_placed: Sequence[bool], labels: Sequence[str]) -> list[st
             hints.append(hint)
         k += n
     return hints
+
+
+def loop_only_caveat(station: str, others: Sequence[str]) -> str:
+    """The caveat of a placed station that only loop closures hold, on a site with unplaced stations
+    (:mod:`cistern_archive.pipeline.support`)."""
+    return (f"{station} is held in place only by matches to {', '.join(others)}, recorded apart from it, and by "
+            "none to a station recorded next to it: a loop closure that the unplaced stations cannot confirm; "
+            f"where chambers look alike {station} may stand in another's place, so check it against the mosaic")
 
 
 def skipped_run_caveat(before: str, after: str, span: str, *, several: bool = False) -> str:
