@@ -85,7 +85,8 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
     if build.map_result is not None:
         result.map_stats = {k: float(v) for k, v in sorted(build.map_result.stats.items())}
     loop_only = [] if poses is None or record.survey is not None else [  # a survey's navigation holds its scans
-        (labels[k], [labels[j] for j in others]) for k, others in held_by_loops_only(build.range_scans, build.matches, poses)]
+        (labels[k], [labels[j] for j in others])
+        for k, others in held_by_loops_only(build.range_scans, build.matches, poses)]
     result.status, result.status_reasons = site_status(
         failed_stage=result.error, scans_placed=[s.placed for s in scans], labels=labels,
         unmeasured=_unmeasured(record, result.dimensions) if build.table is not None else [], joins=links,
@@ -131,9 +132,9 @@ def _requested_probes(record: SiteRecord, k: int, row: DimensionRow) -> int:
 def dimension_result(row: DimensionRow, requested: int, labels: Sequence[str], *, cell_m: float | None = None,
                      poses: Poses | None = None, grids: Sequence[EvidenceGrid] = ()) -> DimensionResult:
     """The JSON form of a comparator row, flagged weak (:func:`~cistern_archive.pipeline.status.weakness`,
-    with the lean of its walls between the depth slices ``grids`` and the comparator's heading check) and with its 95 % interval
-    (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of ``cell_m``) when it is
-    measured."""
+    with the lean of its walls between the depth slices ``grids`` and the comparator's heading check) and
+    with its 95 % interval (:func:`~cistern_archive.pipeline.intervals.ci95_half_width`, on a grid of
+    ``cell_m``) when it is measured."""
     map_m, std = finite_or_none(row.map_m), finite_or_none(row.probe_std_m)
     lines = [line for line in row.probe_lines if line is not None]
     shift = None if math.isnan(row.heading_shift_m) else row.heading_shift_m

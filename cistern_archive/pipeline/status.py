@@ -50,8 +50,9 @@ correction rests on the lean read between the slices, so such a dimension stays 
 
 MAX_HEADING_SHIFT_M = MAX_PROBE_STD_M
 """A dimension that changes by more than this (0.20 m, the limit of the probes' spread) when its probes
-turn 2° about the station they are given from (:attr:`~cistern_archive.core.dimensions.DimensionRow.heading_shift_m`:
-a compass bias of the whole map) is weak. On the bundled three-chamber cistern a length probed from a
+turn 2° about the station they are given from
+(:attr:`~cistern_archive.core.dimensions.DimensionRow.heading_shift_m`: a compass bias of the whole map)
+is weak. On the bundled three-chamber cistern a length probed from a
 station 13.6 m away came out 0.19 m (3.6 %) short, its probes on a corner, and turning them 2° changed it
 by 0.94 m; probed from a station of its own chamber it came out 0.005 m off, and turning changed it by
 0.012 m. The water gallery's first reach (probes ending on the diagonal wall of a bend) changes by
@@ -105,9 +106,9 @@ def weakness(n_probes: int, n_requested: int, probe_std_m: float | None, wall_le
                        "the sonar's tall vertical beam hears a leaning wall nearer than it is, by an amount "
                        "that depends on the lean")
     if heading_shift_m is not None and heading_shift_m > MAX_HEADING_SHIFT_M:
-        reasons.append(f"{HEADING_TURN_DEG:.0f}° of compass bias would change it by "
-                       + (f"{heading_shift_m:.2f} m" if math.isfinite(heading_shift_m) else "more than its probes can tell")
-                       + f" (above {MAX_HEADING_SHIFT_M:.2f} m): its probes, given from a station, end far from "
+        change = f"{heading_shift_m:.2f} m" if math.isfinite(heading_shift_m) else "more than its probes can tell"
+        reasons.append(f"{HEADING_TURN_DEG:.0f}° of compass bias would change it by {change}"
+                       f" (above {MAX_HEADING_SHIFT_M:.2f} m): its probes, given from a station, end far from "
                        "it on walls oblique to them or beside a corner or an opening; give them from a station "
                        "nearer the walls measured")
     return "; ".join(reasons)

@@ -191,8 +191,8 @@ def summary_figures(entries: Sequence[IndexEntry]) -> list[dict[str, str]]:
         figures.append({"label": "Weak dimensions", "value": f"{weak} of {len(shown)}",
                         "explanation": "measured on fewer than half of their probes, with a probe spread "
                                        f"above {MAX_PROBE_STD_M:.2f} m, between walls leaning more than "
-                                       f"{MAX_WALL_LEAN_DEG:.0f}° or changed by more than {MAX_HEADING_SHIFT_M:.2f} m by 2° "
-                                       "of compass bias: read them with care"})
+                                       f"{MAX_WALL_LEAN_DEG:.0f}° or changed by more than "
+                                       f"{MAX_HEADING_SHIFT_M:.2f} m by 2° of compass bias: read them with care"})
     return figures
 
 

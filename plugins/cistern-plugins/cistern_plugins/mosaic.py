@@ -143,11 +143,21 @@ def _measure(
     if probe.method != "probe" or not math.isfinite(row.map_m):
         return row  # automatic axes come from the map itself, not from a station
     pivot = poses.xy_m[station_index[probe.frame]] if probe.frame is not None else np.zeros(2)
-    turned = [_row(ref, grid.depth_m, repeated_probes(grid, occupied, *turn_about(pivot, start, angle, sign * HEADING_TURN_DEG),
-                                                      probe.repeats, probe.spacing_m, p)[0], [], "", p).map_m
-              for sign in (-1.0, 1.0)]
-    shift = max((abs(v - row.map_m) for v in turned if math.isfinite(v)), default=math.inf)
-    return replace(row, heading_shift_m=shift)
+    return replace(row, heading_shift_m=heading_shift(ref, grid, occupied, pivot, start, angle, row.map_m, p))
+
+
+def heading_shift(ref: "ReferenceDimension", grid: EvidenceGrid, occupied: np.ndarray, pivot: np.ndarray,
+                  start: np.ndarray, angle: float, value: float, p: MosaicParams) -> float:
+    """The larger change of ``value`` when the probes turn ``HEADING_TURN_DEG`` either way about
+    ``pivot`` (``inf`` when a turned probe set finds no wall)."""
+    changes = []
+    for sign in (-1.0, 1.0):
+        turned_start, turned_angle = turn_about(pivot, start, angle, sign * HEADING_TURN_DEG)
+        values, _ = repeated_probes(grid, occupied, turned_start, turned_angle, ref.measure.repeats,
+                                    ref.measure.spacing_m, p)
+        turned = _row(ref, grid.depth_m, values, [], "", p).map_m
+        changes.append(abs(turned - value) if math.isfinite(turned) else math.inf)
+    return max(changes)
 
 
 def turn_about(pivot: np.ndarray, start: np.ndarray, angle: float, turn_deg: float) -> tuple[np.ndarray, float]:
