@@ -209,7 +209,7 @@ def test_stopping_from_two_threads_at_once_closes_each_descriptor_once(tcp, monk
     (seen as a later test's socket failing with EBADF)."""
     import cistern_archive.acquisition.emulator_server as emulator_server
 
-    closed: list[int] = []
+    closed: list[object] = []  # descriptor numbers, and sockets by identity
     real_close = os.close
     monkeypatch.setattr(emulator_server.os, "close", lambda fd: (closed.append(fd), real_close(fd))[1])
     real_socket_close = socket.socket.close
