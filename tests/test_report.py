@@ -591,3 +591,15 @@ def test_map_marks_the_joins_of_groups_fitted_as_wholes(tmp_path):
     assert "dotted lines join groups of scans that no match could join" in with_fit.caption
     assert "s2–s3 to ±0.39 m (95 %)" in with_fit.caption  # with how precisely the join places the groups
     assert (tmp_path / "a.png").read_bytes() != (tmp_path / "b.png").read_bytes()
+
+
+def test_a_dimension_with_truth_and_mosaic_is_one_set_of_probes_in_the_figure():
+    from cistern_archive.core.dimensions import DimensionRow
+    from cistern_archive.report.maps import probe_groups
+
+    lines = ((0.0, 0.0, 3.5, 0.0), (0.0, 0.2, 3.5, 0.2))
+    rows = [DimensionRow("width", 3.5, 3.45, "truth", 0.05, probes=(3.5, 3.5), probe_lines=lines),
+            DimensionRow("length", 7.2, 7.21, "truth", -0.01, probes=(7.2,), probe_lines=((0, 1, 7.2, 1),)),
+            DimensionRow("width", 3.5, 3.40, "mosaic", 0.10, probes=(3.5, 3.5), probe_lines=lines),
+            DimensionRow("length", float("nan"), 7.3, "mosaic", float("nan"))]  # not measured: not drawn
+    assert [label for _, label in probe_groups(rows)] == ["width (truth, mosaic): 3.50 m", "length (truth): 7.20 m"]

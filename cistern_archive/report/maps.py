@@ -20,7 +20,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from cistern_archive.core.dimensions import DimensionTable
+from cistern_archive.core.dimensions import DimensionRow, DimensionTable
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.poses import Poses
@@ -166,8 +166,25 @@ def stacked_labels(xy: np.ndarray, labels: Sequence[str], *, tolerance_m: float)
     return [(anchor, " / ".join(names)) for anchor, names in groups]
 
 
+def probe_groups(rows: Sequence[DimensionRow]) -> list[tuple[list[DimensionRow], str]]:
+    """The measured rows grouped by their probe lines (a dimension with a truth and a mosaic reference is
+    one set of probes), each group with its legend label, in table order."""
+    groups: dict[tuple, list[DimensionRow]] = {}
+    for row in rows:
+        if row.probe_lines:
+            key = (row.depth_m, tuple(tuple(round(v, 4) for v in line) for line in row.probe_lines))
+            groups.setdefault(key, []).append(row)
+    labelled = []
+    for members in groups.values():
+        names = list(dict.fromkeys(r.name for r in members))
+        kinds = ", ".join(r.reference_kind for r in members)
+        labelled.append((members, f"{' / '.join(names)} ({kinds}): {members[0].map_m:.2f} m"))
+    return labelled
+
+
 def probe_figure(path: Path, grids: Sequence[EvidenceGrid], table: DimensionTable, *, dpi: int) -> FigureFile:
-    """The probe lines of every dimension over the grid slice it was measured in."""
+    """The probe lines of every dimension over the grid slice it was measured in (a dimension measured
+    against a truth and a mosaic reference is drawn once, with both in its label)."""
     rows = [r for r in table.rows if r.probe_lines]
     depths = sorted({choose_slice(grids, r.depth_m).depth_m for r in rows}) or [grids[0].depth_m]
     if len(depths) == 1:
@@ -176,22 +193,20 @@ def probe_figure(path: Path, grids: Sequence[EvidenceGrid], table: DimensionTabl
         width = 4.6 * len(depths) + 2.6
         fig = new_figure(width, 5.8, dpi, left=0.8 / width, right=1 - 2.5 / width, bottom=0.09, top=0.93, wspace=0.3)
     axes = np.atleast_1d(fig.subplots(1, len(depths)))
-    handles = []
+    groups = probe_groups(rows)
     for ax, depth in zip(axes, depths):
         grid = choose_slice(grids, depth)
         _draw_grid(ax, grid)
         ax.set_title(f"Probes at depth {grid.depth_m:.2f} m", fontsize=10)
-        for k, row in enumerate(table.rows):
-            if not row.probe_lines or choose_slice(grids, row.depth_m).depth_m != depth:
+        for k, (members, _) in enumerate(groups):
+            if choose_slice(grids, members[0].depth_m).depth_m != depth:
                 continue
             colour = DIMENSION_COLOURS[k % len(DIMENSION_COLOURS)]
-            for x0, y0, x1, y1 in row.probe_lines:
+            for x0, y0, x1, y1 in members[0].probe_lines:
                 ax.plot([x0, x1], [y0, y1], color=colour, lw=1.2, alpha=0.9)
                 ax.plot([x0, x1], [y0, y1], "|" if abs(y1 - y0) < abs(x1 - x0) else "_", color=colour, ms=6)
-    for k, row in enumerate(table.rows):
-        if row.probe_lines:
-            handles.append(Line2D([], [], color=DIMENSION_COLOURS[k % len(DIMENSION_COLOURS)], lw=2,
-                                  label=f"{row.name} ({row.reference_kind}): {row.map_m:.2f} m"))
+    handles = [Line2D([], [], color=DIMENSION_COLOURS[k % len(DIMENSION_COLOURS)], lw=2, label=label)
+               for k, (_, label) in enumerate(groups)]
     if handles:
         axes[-1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     save_figure(fig, path, dpi=dpi)
