@@ -20,7 +20,7 @@ import numpy as np
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.poses import Poses
 from cistern_archive.core.scan import RangeScan
-from cistern_archive.pipeline.survey_order import recording_order
+from cistern_archive.pipeline.survey_order import SurveyOrder
 
 AGREE_M = 0.3
 """A converged match holds its two scans in place when the solution puts them within this of the match's
@@ -48,7 +48,6 @@ def held_by_loops_only(scans: Sequence[RangeScan], matches: Sequence[MatchResult
     """The placed scans whose every holding match (:func:`holding_matches`) joins them to a scan recorded
     two or more places away in the survey's order, each with those scans; scans held by no match (a fit
     of groups, a vertical tie) are not listed: their joins have reasons of their own."""
-    order = recording_order(scans) or tuple(range(len(scans)))
-    rank = {k: r for r, k in enumerate(order)}
+    survey = SurveyOrder(scans)
     return [(k, sorted(others)) for k, others in sorted(holding_matches(matches, poses).items())
-            if others and all(abs(rank[k] - rank[j]) >= 2 for j in others)]
+            if others and all(abs(survey.place(k) - survey.place(j)) >= 2 for j in others)]

@@ -54,9 +54,13 @@ class SurveyOrder:
         for the localizer to pass over)."""
         if self.order is None:
             return list(matches)
-        return [replace(m, i=self._renumbered(m.i), j=self._renumbered(m.j)) for m in matches]
+        return [replace(m, i=self.place(m.i), j=self.place(m.j)) for m in matches]
 
-    def _renumbered(self, k: int) -> int:
+    def place(self, k: int) -> int:
+        """Scan ``k``'s place in the survey's order (``k`` itself where the record lists the scans as
+        recorded, or for an index of no scan)."""
+        if self.order is None:
+            return k
         return int(self.rank[k]) if 0 <= k < len(self.rank) else k
 
     def pairs_back(self, pairs: Sequence[tuple]) -> list[tuple]:

@@ -127,11 +127,12 @@ def _measure(
     if grid is None or grid.log_odds.size == 0:
         return _row(ref, float("nan"), [], [], "the map is empty")
     occupied = grid.log_odds > p.occupied_log_odds
+    pivot = None  # the station a probe is given from: automatic axes come from the map itself
     if probe.method == "probe":
         placed = probe_in_map(probe, poses, station_index, p.frame_rotation)
         if isinstance(placed, str):
             return _row(ref, grid.depth_m, [], [], placed)
-        start, angle = placed
+        start, angle, pivot = placed
     else:
         axes = principal_axes(grid, occupied)
         if axes is None:
@@ -140,9 +141,8 @@ def _measure(
         angle = major if probe.method == "auto-length" else major + math.pi / 2
     values, lines = repeated_probes(grid, occupied, start, angle, probe.repeats, probe.spacing_m, p)
     row = _row(ref, grid.depth_m, values, lines, "", p)
-    if probe.method != "probe" or not math.isfinite(row.map_m):
-        return row  # automatic axes come from the map itself, not from a station
-    pivot = poses.xy_m[station_index[probe.frame]] if probe.frame is not None else np.zeros(2)
+    if pivot is None or not math.isfinite(row.map_m):
+        return row
     return replace(row, heading_shift_m=heading_shift(ref, grid, occupied, pivot, start, angle, row.map_m, p))
 
 
@@ -181,12 +181,13 @@ def pick_grid(map_result: MapResult, depth_m: float | None) -> EvidenceGrid | No
 
 def probe_in_map(
     probe: "Probe", poses: Poses, station_index: dict[str, int], rotation: str
-) -> tuple[np.ndarray, float] | str:
-    """Map-frame start point and direction (rad) of a probe, or why it cannot be placed."""
+) -> tuple[np.ndarray, float, np.ndarray] | str:
+    """Map-frame start point and direction (rad) of a probe and the point it is given from (its frame
+    station, or the map's origin), or why it cannot be placed."""
     inside = np.asarray(probe.inside, dtype=np.float64)
     angle = math.radians(probe.direction_deg)
     if probe.frame is None:
-        return inside, angle
+        return inside, angle, np.zeros(2)
     if probe.frame not in station_index:
         return f"probe frame {probe.frame!r} is not a station of the site"
     k = station_index[probe.frame]
@@ -197,7 +198,7 @@ def probe_in_map(
         c, s = math.cos(yaw), math.sin(yaw)
         inside = np.array([c * inside[0] - s * inside[1], s * inside[0] + c * inside[1]])
         angle += yaw
-    return poses.xy_m[k] + inside, angle
+    return poses.xy_m[k] + inside, angle, poses.xy_m[k]
 
 
 def principal_axes(grid: EvidenceGrid, occupied: np.ndarray) -> tuple[np.ndarray, float] | None:
