@@ -593,6 +593,21 @@ def test_map_marks_the_joins_of_groups_fitted_as_wholes(tmp_path):
     assert (tmp_path / "a.png").read_bytes() != (tmp_path / "b.png").read_bytes()
 
 
+def test_map_says_over_what_depths_its_stations_lie_when_they_spread(tmp_path):
+    """One slice is drawn with every placed station; stations spread over depth are named with their
+    depths (the unplaced station's depth does not count), stations at one depth are not."""
+    from cistern_archive.report.maps import map_figure
+
+    xy = np.array([[0.0, 0.0], [2.0, 0.0], [4.0, 0.0]])
+    poses = Poses(xy, np.zeros(3), np.array([True, True, False]), ("", "", "not placed"), 0)
+    spread = map_figure(tmp_path / "a.png", None, poses, [], ["s1", "s2", "s3"], dpi=60,
+                        station_depths_m=[1.45, 2.6, 4.0])
+    level = map_figure(tmp_path / "b.png", None, poses, [], ["s1", "s2", "s3"], dpi=60,
+                       station_depths_m=[1.45, 1.5, 4.0])
+    assert "(stations at 1.45–2.60 m)" in spread.caption and "(stations at 1.45–2.60 m)" in spread.alt
+    assert "stations at" not in level.caption
+
+
 def test_a_dimension_with_truth_and_mosaic_is_one_set_of_probes_in_the_figure():
     from cistern_archive.core.dimensions import DimensionRow
     from cistern_archive.report.maps import probe_groups

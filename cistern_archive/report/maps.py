@@ -30,6 +30,7 @@ from cistern_archive.report.files import save_figure
 
 GRID_CMAP = "gray_r"
 MANY_STATIONS = 50
+STATION_SPAN_M = 0.2  # stations spread over this much depth or more: the map names their depths
 """Above this many placed stations the map draws them as small dots."""
 DIMENSION_COLOURS = ("#e66101", "#5e3c99", "#1a9641", "#d7191c", "#2b83ba", "#a6611a")
 
@@ -71,9 +72,12 @@ def map_figure(
     *,
     dpi: int,
     label_every: int = 1,
+    station_depths_m: Sequence[float] = (),
 ) -> FigureFile:
     """The evidence grid with stations and pair links; every ``label_every``-th placed station (and the
     last) is labelled (a survey's hundreds of revolutions would bury the map under their labels).
+    ``station_depths_m`` (one per scan): where the placed stations lie over a range of depths, the
+    title and caption say which (the slice drawn is at one depth, the stations drawn are all of them).
 
     Links join placed stations: solid green for converged matches, dashed magenta for the others, the
     width growing with the match weight (relative to the largest weight of the site); dotted blue for
@@ -126,7 +130,7 @@ def map_figure(
                Line2D([], [], marker="o", ls="", mfc="#2166ac", mec="white", ms=8, label="scan station"),
                Line2D([], [], marker="*", ls="", mfc="#ffd92f", mec="black", ms=12, label="reference scan")]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    depth = "" if grid is None else f" at depth {grid.depth_m:.2f} m"
+    depth = ("" if grid is None else f" at depth {grid.depth_m:.2f} m") + station_span(station_depths_m, placed)
     ax.set_title(f"Evidence grid{depth}", fontsize=11)
     save_figure(fig, path, dpi=dpi)
     unplaced = [labels[k] for k in range(len(labels)) if poses is None or not poses.placed[k]]
@@ -143,6 +147,15 @@ def map_figure(
     return FigureFile("map", path.name, "Map with scan stations and pair links",
                       f"Top-down evidence grid map{depth} with {len(placed)} scan stations and "
                       f"{len(matches)} pair-match links", caption)
+
+
+def station_span(depths_m: Sequence[float], placed: Sequence[int]) -> str:
+    """`` (stations at 1.45–2.60 m)`` where the placed stations' depths span ``STATION_SPAN_M`` or more,
+    else nothing."""
+    depths = [depths_m[k] for k in placed if k < len(depths_m) and math.isfinite(depths_m[k])]
+    if not depths or max(depths) - min(depths) < STATION_SPAN_M:
+        return ""
+    return f" (stations at {min(depths):.2f}–{max(depths):.2f} m)"
 
 
 def join_precision(poses: Poses, labels: Sequence[str]) -> str:

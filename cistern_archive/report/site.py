@@ -85,7 +85,8 @@ def draw_figures(build: SiteBuild, labels: list[str], site_dir: Path, config: Re
     grid = maps.choose_slice(grids, _scan_depth(build)) if grids else None
     if grid is not None or build.poses is not None:
         out["map"] = maps.map_figure(site_dir / "map.png", grid, build.poses, build.matches, labels,
-                                     dpi=config.dpi, label_every=max(1, -(-len(labels) // MAX_MAP_LABELS)))
+                                     dpi=config.dpi, label_every=max(1, -(-len(labels) // MAX_MAP_LABELS)),
+                                     station_depths_m=[s.depth_m for s in build.result.scans])
     if grid is not None:
         maps.thumbnail(site_dir / "thumbnail.png", grid, build.poses, width_px=config.thumbnail_px)
         out["thumbnail"] = "thumbnail.png"
