@@ -16,9 +16,14 @@ and no stretch of wall longer than ``max_violation_run_m`` may lie in the water 
   its pairs lay a stretch over the limit (and the second longest), its back-to-back count
   (:func:`back_to_back`), and how many pairs apart lay a stretch over ``CORROBORATED_RUN_M``
   (:func:`~cistern_plugins.site_groups.corroborated_runs`), and the second longest stretch among pairs that
-  share no scan (what :data:`~cistern_plugins.site_groups.CORROBORATED_RUN_M` is set against). The wall
-  check is observed, not changed: each call is
-  recorded and passed on.
+  share no scan (what :data:`~cistern_plugins.site_groups.CORROBORATED_RUN_M` is set against), and the
+  median two-way share of its pairs that share walls (:func:`two_way`, what
+  :data:`~cistern_plugins.site_groups.TWO_WAY_SHARE` is set against). The wall check is observed, not
+  changed: each call is recorded and passed on;
+* ``settled``: every split of a group that the final check judged (five or more pairs sharing walls;
+  :func:`~cistern_plugins.settled_groups.settled_splits`), right (every pair of the two parts within 0.3 m
+  of the truth) or wrong (every pair more than 1 m off), with its median two-way share: what
+  :data:`~cistern_plugins.settled_groups.SETTLED_TWO_WAY_SHARE` is set against.
 
 Usage::
 
@@ -43,6 +48,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+import cistern_plugins.settled_groups as settled_groups  # noqa: E402
 import cistern_plugins.site_groups as site_groups  # noqa: E402
 from cistern_archive.catalog.loader import load_record  # noqa: E402
 from cistern_archive.pipeline.runner import build_site  # noqa: E402
@@ -53,6 +59,23 @@ from sites import OK_PAIR_M, SiteTruth  # noqa: E402
 WRONG_MATCH_M = 0.5
 RIGHT_JOIN_M = 0.3
 WRONG_JOIN_M = 1.0
+
+
+class SplitRecorder:
+    """Records every split of a group that ``site-graph``'s final check judges
+    (:func:`~cistern_plugins.settled_groups.settled_splits`) and passes them on unchanged."""
+
+    def __init__(self) -> None:
+        self.splits: list[settled_groups.Split] = []
+        original = settled_groups.settled_splits
+        recorder = self
+
+        def settled_splits(walls, graph, known):
+            splits = original(walls, graph, known)
+            recorder.splits += splits
+            return splits
+
+        settled_groups.settled_splits = settled_splits
 
 
 class JoinRecorder:
@@ -81,6 +104,21 @@ def back_to_back(pairs: list[site_groups.JoinPair]) -> tuple[int, int]:
     return max(backs, default=0), sum(site_groups.laid_back_to_back(p.quality, limits) for p in pairs)
 
 
+def two_way(pairs: list[site_groups.JoinPair], limits: ConvergenceThresholds) -> tuple[int, float]:
+    """How many pairs of a join share ``min_inliers`` wall points, and their median two-way share
+    (:func:`~cistern_plugins.site_groups.two_way_share`): what :data:`~cistern_plugins.site_groups.TWO_WAY_SHARE`
+    is set against."""
+    sharing = site_groups.sharing_pairs(pairs, limits)
+    return len(sharing), site_groups.two_way_share(sharing)
+
+
+def split_errors(split, truth: SiteTruth) -> tuple[float, float]:
+    """The least and the largest error (m, against the truth) of the relative positions of the scans the
+    split parts, as the graph placed them."""
+    errors = [truth.displacement_error(p.a, p.b, p.rel.x(), p.rel.y()) for p in split.sharing]
+    return min(errors), max(errors)
+
+
 def truth_pairs(scans, truth: SiteTruth) -> list[tuple[float, int, int]]:
     """(longest stretch, inliers, points seen from behind) of every pair at its true pose."""
     limits = ConvergenceThresholds()
@@ -97,7 +135,7 @@ def truth_pairs(scans, truth: SiteTruth) -> list[tuple[float, int, int]]:
 def one_site(job: tuple[int, int]) -> dict:
     """Simulate, build and measure site ``k`` of seed ``seed``."""
     seed, k = job
-    recorder = JoinRecorder()
+    recorder, split_recorder = JoinRecorder(), SplitRecorder()
     cistern = random_cisterns(k + 1, seed)[k]
     with tempfile.TemporaryDirectory(prefix="wall-tests-") as tmp:
         root = Path(tmp)
@@ -123,14 +161,18 @@ def one_site(job: tuple[int, int]) -> dict:
                 disjoint = [run for run, _, _ in site_groups.corroborated_runs(pairs, 0.0)]  # longest first
                 corroborated = sum(run > site_groups.CORROBORATED_RUN_M for run in disjoint)
                 joins.append((max(errors), runs[0], *back_to_back(pairs), over, runs[1] if len(runs) > 1 else 0.0,
-                              corroborated, disjoint[1] if len(disjoint) > 1 else 0.0))
-        return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins}
+                              corroborated, disjoint[1] if len(disjoint) > 1 else 0.0, *two_way(pairs, limits)))
+        splits = [(*split_errors(split, truth), split.share, len(split.sharing), split.conflicts)
+                  for split in split_recorder.splits]
+        return {"truth": truth_pairs(scans, truth), "matches": matches, "joins": joins, "splits": splits}
 
 
 def summary(rows: list[dict]) -> dict:
     truth = np.array([t for r in rows for t in r["truth"]], dtype=float).reshape(-1, 3)
     matches = np.array([m for r in rows for m in r["matches"]], dtype=float).reshape(-1, 2)
-    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 8)
+    joins = np.array([j for r in rows for j in r["joins"]], dtype=float).reshape(-1, 10)
+    splits = np.array([s for r in rows for s in r["splits"]], dtype=float).reshape(-1, 5)
+    right_splits, wrong_splits = splits[splits[:, 1] <= RIGHT_JOIN_M], splits[splits[:, 0] > WRONG_JOIN_M]
     limit = ConvergenceThresholds().max_violation_run_m
     share = truth[:, 2] / np.maximum(truth[:, 1] + truth[:, 2], 1)
     right, wrong = matches[matches[:, 0] <= OK_PAIR_M], matches[matches[:, 0] > WRONG_MATCH_M]
@@ -158,7 +200,16 @@ def summary(rows: list[dict]) -> dict:
                   "wrong_corroborated": sorted(int(n) for n in wrong_joins[:, 6]),
                   "right_second_disjoint_max_m": top(right_joins[:, 7]),
                   "right_second_disjoint_q99_m": round(float(np.quantile(right_joins[:, 7], 0.99)), 3) if len(right_joins) else None,
-                  "wrong_second_disjoint_m": sorted(round(float(v), 2) for v in wrong_joins[:, 7])},
+                  "wrong_second_disjoint_m": sorted(round(float(v), 2) for v in wrong_joins[:, 7]),
+                  "right_two_way_max": top(right_joins[right_joins[:, 8] >= site_groups.TWO_WAY_PAIRS, 9]),
+                  "right_two_way_few_pairs_max": top(right_joins[(right_joins[:, 8] > 0)
+                                                                 & (right_joins[:, 8] < site_groups.TWO_WAY_PAIRS), 9]),
+                  "wrong_two_way": sorted((int(n), round(float(v), 4)) for n, v in wrong_joins[:, 8:10])},
+        "settled": {"right": len(right_splits), "right_max_share": top(right_splits[:, 2]),
+                    "right_q999_share": round(float(np.quantile(right_splits[:, 2], 0.999)), 4) if len(right_splits) else None,
+                    "right_over_limit": int((right_splits[:, 2] > settled_groups.SETTLED_TWO_WAY_SHARE).sum()),
+                    "wrong": len(wrong_splits),
+                    "wrong_shares": sorted((int(n), round(float(v), 4)) for v, n in wrong_splits[:, 2:4])},
         "limit_m": limit,
     }
 

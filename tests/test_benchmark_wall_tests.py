@@ -19,3 +19,6 @@ def test_one_site_reports_every_figure():
     assert truth["behind_quarter_25_points"] <= truth["behind_quarter"] <= truth["n"]
     assert figures["matches"]["right"] > 0 and figures["matches"]["right_max_run_m"] <= figures["limit_m"]
     assert figures["joins"]["right"] + figures["joins"]["wrong"] > 0
+    settled = figures["settled"]
+    assert settled["right"] > 0 and 0.0 <= settled["right_q999_share"] <= settled["right_max_share"]
+    assert settled["right_over_limit"] == 0  # a right split over the limit: a right station cut off

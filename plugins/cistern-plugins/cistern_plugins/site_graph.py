@@ -78,7 +78,14 @@ builds a graph over the whole site instead, in three steps.
    fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
    chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). The clearest accepted fit joins first, until
    none is left. Its edge carries the covariance of the fit's score, wide along a tunnel that both
-   groups see end to end. Every edge left over is checked against the merged geometry as before.
+   groups see end to end.
+
+   Once every join is made, each group is judged again whole (:mod:`cistern_plugins.settled_groups`): a
+   join judged when one scan of a look-alike chamber joined a group of three could not weigh the few
+   per cent of walls each sonar put into the other's water; with the whole chamber joined it can. A run
+   of stations visited one after another whose pairs with the rest of its group put walls into water
+   both ways is cut off, the smaller part left unplaced with the reason. Every edge left over is then
+   checked against the merged geometry as before.
 
 3. **Robust least squares** (:mod:`cistern_plugins.factor_graph`): the accepted edges and the vertical
    ties in a GTSAM factor graph with a robust loss, the compass as a prior on every heading correction
@@ -111,6 +118,7 @@ from cistern_archive.core.scan import RangeScan
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated
 from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.group_fit import GroupFitSettings
+from cistern_plugins.settled_groups import recheck_groups
 from cistern_plugins.site_groups import (
     Graph,
     WallCheck,
@@ -378,10 +386,11 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
         pending = [k for k in pending if k not in members]
     if p.group_fit:
         graph.edges += join_by_fit(graph, scans, walls, p)
+    cuts = recheck_groups(graph, walls)
     for k in pending:
         e = edges[k]
         if graph.group[e.i] != graph.group[e.j]:
-            graph.rejected[(e.i, e.j)] = (
+            graph.rejected[(e.i, e.j)] = cuts.get(frozenset((e.i, e.j))) or (
                 "converged, but no link strong enough joins its two stations' groups (a loop closure needs "
                 f"confidence {p.bridge_confidence:.2f} or more and, between groups of several scans, two "
                 "stations on each side)" if strong[k] else

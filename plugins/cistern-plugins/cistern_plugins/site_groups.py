@@ -208,6 +208,17 @@ def corroborated_runs(pairs: Sequence[JoinPair], min_run_m: float) -> list[tuple
     return chosen
 
 
+def sharing_pairs(pairs: Sequence[JoinPair], limits: ConvergenceThresholds) -> list[JoinPair]:
+    """The pairs that share ``min_inliers`` or more wall points (as many points at the calibration's step)."""
+    return [p for p in pairs if p.quality.equivalent_inliers >= limits.min_inliers]
+
+
+def two_way_share(sharing: Sequence[JoinPair]) -> float:
+    """The median, over pairs, of the share of wall points each sonar of a pair puts into the other's water,
+    the smaller of the two directions (``AlignmentQuality.violation_min``); 0 without pairs."""
+    return float(np.median([p.quality.violation_min for p in sharing])) if sharing else 0.0
+
+
 def laid_back_to_back(q: AlignmentQuality, limits: ConvergenceThresholds) -> bool:
     """Whether a pair of scans lays ``min_inliers`` or more wall points on walls the other sonar saw from
     the other side, more than it lays on walls seen from the same side (:meth:`WallCheck.conflict`)."""
@@ -253,11 +264,17 @@ class WallCheck:
         merge of ``j``'s group into ``i``'s by ``z`` would place them, assessed both ways
         (:meth:`~cistern_plugins.alignment.ReferenceModel.assess_pair`)."""
         offset = graph.pose[i].compose(z).compose(graph.pose[j].inverse())
+        moved = {b: offset.compose(graph.pose[b]) for b in graph.members(graph.group[j])}
+        return self.assess_sides(graph.members(graph.group[i]), graph.pose, list(moved), moved)
+
+    def assess_sides(self, side_a: Sequence[int], poses_a, side_b: Sequence[int], poses_b) -> list[JoinPair]:
+        """Every pair of a scan of ``side_a`` and one of ``side_b`` at one depth level and within sonar
+        range, at their poses (``poses_a[k]``, ``poses_b[k]``), assessed both ways."""
         pairs = []
-        for a in graph.members(graph.group[i]):
-            for b in graph.members(graph.group[j]):
+        for a in side_a:
+            for b in side_b:
                 sa, sb = self.scans[a], self.scans[b]
-                rel = graph.pose[a].between(offset.compose(graph.pose[b]))
+                rel = poses_a[a].between(poses_b[b])
                 if same_level(self.levels, a, b) and math.hypot(rel.x(), rel.y()) <= min(sa.max_range_m, sb.max_range_m):
                     pairs.append(JoinPair(self.model(a).assess_pair(sb, pose_array(rel), self.limits), a, b, rel))
         return pairs
@@ -277,7 +294,7 @@ class WallCheck:
         pairs = self.assess_join(graph, i, j, z)
         runs = [(q.violation_run_m, a, b) for q, a, b, _ in pairs]
         backs = [(q.behind, q.inliers, a, b) for q, a, b, _ in pairs if laid_back_to_back(q, self.limits)]
-        sharing = [p for p in pairs if p.quality.equivalent_inliers >= self.limits.min_inliers]
+        sharing = sharing_pairs(pairs, self.limits)
         shares = [(q.violation_ratio, a, b) for q, a, b, _ in sharing]
         run, a, b = max(runs, default=(0.0, -1, -1))
         if run > self.limits.max_violation_run_m:
@@ -289,7 +306,7 @@ class WallCheck:
             return (f"joining its groups would lay wall across the water other scans saw, from {len(corroborated)} "
                     f"pairs of stations apart ({seen}; {CORROBORATED_PAIRS} or more over {CORROBORATED_RUN_M:.2f} m): "
                     "as one chamber's opening laid onto a look-alike's solid wall")
-        both_ways = float(np.median([p.quality.violation_min for p in sharing])) if len(sharing) >= TWO_WAY_PAIRS else 0.0
+        both_ways = two_way_share(sharing) if len(sharing) >= TWO_WAY_PAIRS else 0.0
         if both_ways > TWO_WAY_SHARE:
             return (f"joining its groups would put walls into water both ways: over {len(sharing)} pairs, a median "
                     f"{100 * both_ways:.1f} % of each sonar's wall points fall in the water the other saw "
