@@ -109,10 +109,15 @@ def settled_splits(walls: WallCheck, graph: Graph, known: dict[tuple[int, int], 
     return out
 
 
+def run_name(walls: WallCheck, split: Split) -> str:
+    """The split's run of stations by its first and last labels (``b1 … c2``)."""
+    run = [walls.label(k) for k in split.run]
+    return run[0] if len(run) == 1 else f"{run[0]} … {run[-1]}"
+
+
 def cut_reason(walls: WallCheck, split: Split) -> str:
     """Why the smaller part of a cut split is not placed with the rest."""
-    run = [walls.label(k) for k in split.run]
-    named = run[0] if len(run) == 1 else f"{run[0]} … {run[-1]}"
+    named = run_name(walls, split)
     return (f"the stations {named}, visited one after another, and the rest of their group put walls into water "
             f"both ways once placed together: over {len(split.sharing)} pairs of stations, a median "
             f"{100 * split.share:.1f} % of each sonar's wall points fall in the water the other saw (at most "
@@ -124,8 +129,8 @@ def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
     """Judge every group again (module docstring) and cut the split over the limit that parts the most
     pairs in conflict, among those whose two parts their own edges hold together, until none is left: the smaller part (the one without the earliest
     scan, between equals) becomes a group of its own, the edges across the cut leave ``graph.edges``
-    (rejected with the reason) and its scans keep the reason in ``graph.unjoined``. Returns the reason
-    for every pair of scans across a cut."""
+    (rejected as joining the two parts) and its scans keep the reason in ``graph.unjoined``. Returns
+    the reason of a match for every pair of scans across a cut."""
     across: dict[frozenset[int], str] = {}
     known: dict[tuple[int, int], list[JoinPair]] = {}
     while True:
@@ -135,6 +140,8 @@ def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
             return across
         split = max(over, key=lambda s: (s.conflicts, s.share, -min(s.run)))
         why = cut_reason(walls, split)
+        across_why = (f"joins the stations {run_name(walls, split)} to the rest of their group, which the two "
+                      "put walls into each other's water once placed together (a look-alike chamber)")
         keep, cut = sorted((split.run, split.rest), key=lambda part: (len(part), -min(part)), reverse=True)
         for part in (keep, cut):
             for k in part:
@@ -142,8 +149,8 @@ def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
         graph.fitted = [f for f in graph.fitted if graph.group[f[0]] == graph.group[f[1]]]
         for e in graph.edges:
             if graph.group[e.i] != graph.group[e.j]:
-                graph.rejected[(e.i, e.j)] = why
+                graph.rejected[(e.i, e.j)] = across_why
         graph.edges = [e for e in graph.edges if graph.group[e.i] == graph.group[e.j]]
         for k in cut:
             graph.unjoined[k] = why
-        across.update({frozenset((a, b)): why for a in keep for b in cut})
+        across.update({frozenset((a, b)): across_why for a in keep for b in cut})
