@@ -14,12 +14,11 @@ So when every join is made, each group is split in two every way the survey allo
 visited one after another against the rest of the group (a chamber, or a chamber and what lies beyond it,
 entered once) — and each split is judged over the pairs of its two parts that share walls: where five or
 more such pairs put a median of more than :data:`SETTLED_TWO_WAY_SHARE` of their wall points into each
-other's water both ways, the worst such split is cut. The smaller part leaves the group (and so is not
-placed, with the reason), every match across the cut is rejected with it, and the groups left are
-judged again. A look-alike join displaces everything placed through it, so of the splits over the limit
-the one that parts the most pairs in conflict is cut (the stations beyond a look-alike chamber, placed
-through it, go with it). A part that its own matches do not hold together is never cut off, nor left
-behind.
+other's water both ways, one such split is cut. A look-alike join displaces everything placed through
+it, so the split cut is the one that parts the most pairs in conflict (the stations beyond a look-alike
+chamber, placed through it, go with it). The smaller part leaves the group (and so is not placed, with
+the reason), every match across the cut is rejected, and the groups left are judged again. A part
+that its own matches do not hold together is never cut off, nor left behind.
 """
 
 from __future__ import annotations
@@ -127,10 +126,11 @@ def cut_reason(walls: WallCheck, split: Split) -> str:
 
 def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
     """Judge every group again (module docstring) and cut the split over the limit that parts the most
-    pairs in conflict, among those whose two parts their own edges hold together, until none is left: the smaller part (the one without the earliest
-    scan, between equals) becomes a group of its own, the edges across the cut leave ``graph.edges``
-    (rejected as joining the two parts) and its scans keep the reason in ``graph.unjoined``. Returns
-    the reason of a match for every pair of scans across a cut."""
+    pairs in conflict, among those whose two parts their own edges hold together, until none is left: the
+    smaller part (the one without the earliest scan, between equals) becomes a group of its own, the
+    edges across the cut leave ``graph.edges`` (rejected as joining the two parts) and its scans keep
+    the reason in ``graph.unjoined``. Returns the reason of a match for every pair of scans across a
+    cut."""
     across: dict[frozenset[int], str] = {}
     known: dict[tuple[int, int], list[JoinPair]] = {}
     while True:
@@ -140,8 +140,8 @@ def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
             return across
         split = max(over, key=lambda s: (s.conflicts, s.share, -min(s.run)))
         why = cut_reason(walls, split)
-        across_why = (f"joins the stations {run_name(walls, split)} to the rest of their group, which the two "
-                      "put walls into each other's water once placed together (a look-alike chamber)")
+        across_why = (f"joins the stations {run_name(walls, split)} to the rest of their group; placed together, "
+                      "the two put walls into each other's water (a look-alike chamber)")
         keep, cut = sorted((split.run, split.rest), key=lambda part: (len(part), -min(part)), reverse=True)
         for part in (keep, cut):
             for k in part:
