@@ -129,7 +129,7 @@ def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
     pairs in conflict, among those whose two parts their own edges hold together, until none is left: the
     smaller part (the one without the earliest scan, between equals) becomes a group of its own, the
     edges across the cut leave ``graph.edges`` (rejected as joining the two parts) and its scans keep
-    the reason in ``graph.unjoined``. Returns the reason of a match for every pair of scans across a
+    the reason in ``graph.cut``. Returns the reason of a match for every pair of scans across a
     cut."""
     across: dict[frozenset[int], str] = {}
     known: dict[tuple[int, int], list[JoinPair]] = {}
@@ -152,5 +152,5 @@ def recheck_groups(graph: Graph, walls: WallCheck) -> dict[frozenset[int], str]:
                 graph.rejected[(e.i, e.j)] = across_why
         graph.edges = [e for e in graph.edges if graph.group[e.i] == graph.group[e.j]]
         for k in cut:
-            graph.unjoined[k] = why
+            graph.cut[k] = why
         across.update({frozenset((a, b)): across_why for a in keep for b in cut})

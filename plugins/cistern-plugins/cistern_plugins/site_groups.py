@@ -54,6 +54,9 @@ class Graph:
     rejected: dict[tuple[int, int], str] = field(default_factory=dict)
     unjoined: dict[int, str] = field(default_factory=dict)
     """Why the group fit did not join a scan's group to the reference's (by scan)."""
+    cut: dict[int, str] = field(default_factory=dict)
+    """Why a scan was cut off its group once the group was whole (by scan;
+    :mod:`cistern_plugins.settled_groups`): said first of an unplaced scan."""
     fitted: list[tuple[int, int]] = field(default_factory=list)
     """The scans of each join by a group fit (the edge's two ends)."""
 
@@ -496,4 +499,5 @@ def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[Matc
     detail = "; ".join(notes[:3]) + (f"; and {len(notes) - 3} more" if len(notes) > 3 else "")
     if k in graph.unjoined:
         detail = "; ".join(filter(None, (detail, graph.unjoined[k])))
-    return f"no consistent chain of matches to {target}" + (f" ({detail})" if detail else " (no pair was matched)")
+    cut = f": {graph.cut[k]}" if k in graph.cut else ""
+    return f"no consistent chain of matches to {target}{cut}" + (f" ({detail})" if detail else " (no pair was matched)")
