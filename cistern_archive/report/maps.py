@@ -30,8 +30,9 @@ from cistern_archive.report.files import save_figure
 
 GRID_CMAP = "gray_r"
 MANY_STATIONS = 50
-STATION_SPAN_M = 0.2  # stations spread over this much depth or more: the map names their depths
 """Above this many placed stations the map draws them as small dots."""
+STATION_SPAN_M = 0.2
+"""Placed stations spread over this much depth or more: the map's title and caption name their depths."""
 DIMENSION_COLOURS = ("#e66101", "#5e3c99", "#1a9641", "#d7191c", "#2b83ba", "#a6611a")
 
 
