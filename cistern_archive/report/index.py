@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 
 from cistern_archive import __version__
+from cistern_archive.core.dimensions import HEADING_TURN_DEG
 from cistern_archive.pipeline.results import DimensionResult, SiteResult, TrackSummary
 from cistern_archive.pipeline.status import MAX_HEADING_SHIFT_M, MAX_JOIN_CI95_M, MAX_PROBE_STD_M, MAX_WALL_LEAN_DEG
 from cistern_archive.report.config import ReportConfig
@@ -126,7 +127,8 @@ COMMON_COLUMNS = (
     TableColumn("map", "Map (m)", "mean of the probe lines measured wall to wall in the evidence grid, "
                                   "± the half-width of its 95 % interval (probe spread, grid cell, where "
                                   "the localizer gives it the pose uncertainty of the scans that saw the walls, "
-                                  "and the map's heading: the probes turned 2° about their station)"),
+                                  f"and the map's heading: the probes turned {HEADING_TURN_DEG:.0f}° about their "
+                                  "station)"),
 )
 TAIL_COLUMNS = (
     TableColumn("probes", "Probes", "probes the value rests on, of those the record asked for"),
@@ -192,7 +194,8 @@ def summary_figures(entries: Sequence[IndexEntry]) -> list[dict[str, str]]:
                         "explanation": "measured on fewer than half of their probes, with a probe spread "
                                        f"above {MAX_PROBE_STD_M:.2f} m, between walls leaning more than "
                                        f"{MAX_WALL_LEAN_DEG:.0f}° or changed by more than "
-                                       f"{MAX_HEADING_SHIFT_M:.2f} m by 2° of compass bias: read them with care"})
+                                       f"{MAX_HEADING_SHIFT_M:.2f} m by {HEADING_TURN_DEG:.0f}° of compass bias: read them with "
+                                       "care"})
     return figures
 
 
@@ -256,6 +259,7 @@ def render_index(
         weak_threshold=f"{MAX_PROBE_STD_M:.2f}",
         lean_threshold=f"{MAX_WALL_LEAN_DEG:.0f}",
         heading_threshold=f"{MAX_HEADING_SHIFT_M:.2f}",
+        heading_turn=f"{HEADING_TURN_DEG:.0f}",
         join_threshold=f"{MAX_JOIN_CI95_M:.2f}",
         track_columns=TRACK_COLUMNS,
         track_rows=track_table(entries),

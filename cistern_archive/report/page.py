@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from cistern_archive import __version__
+from cistern_archive.core.dimensions import HEADING_TURN_DEG
 from cistern_archive.core.scan import compass_deg_from_yaw
 from cistern_archive.evaluation import scan_position_errors
 from cistern_archive.pipeline.export import diff_percent
@@ -202,6 +203,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "weak_threshold": f"{MAX_PROBE_STD_M:.2f}",
         "lean_threshold": f"{MAX_WALL_LEAN_DEG:.0f}",
         "heading_threshold": f"{MAX_HEADING_SHIFT_M:.2f}",
+        "heading_turn": f"{HEADING_TURN_DEG:.0f}",
         "ids": ids,
         "sections": sections,
         "location": location_text(build.record),

@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
+from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.site_groups import (
     TWO_WAY_PAIRS,
     Graph,
@@ -71,18 +72,8 @@ def runs_of(members: Sequence[int]) -> Iterator[tuple[list[int], list[int]]]:
 def held_together(part: Sequence[int], graph: Graph) -> bool:
     """Whether the accepted edges and ties among a part's scans join all of them."""
     inside = set(part)
-    parent = {k: k for k in inside}
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    for e in list(graph.edges) + list(graph.ties):
-        if e.i in inside and e.j in inside:
-            parent[root(e.i)] = root(e.j)
-    return len({root(k) for k in inside}) == 1
+    links = [e for e in list(graph.edges) + list(graph.ties) if e.i in inside and e.j in inside]
+    return inside <= set(spanning_tree(len(graph.group), links, part[0]))
 
 
 def pair_quality(walls: WallCheck, graph: Graph, a: int, b: int, known: dict[tuple[int, int], list[JoinPair]]
