@@ -2,6 +2,7 @@
 matches rejected as a set, tentative matches only with corroboration, vertical ties, station labels."""
 
 import numpy as np
+import pytest
 
 from cistern_archive.pipeline.contracts import MatchResult, VerticalTie
 from cistern_archive.core.scan import RangeScan
@@ -403,3 +404,35 @@ def test_a_tunnel_mouth_laid_onto_solid_wall_from_two_pairs_apart_refuses_a_join
         why = check.conflict(graph, 0, 2, z)
         assert ("2 pairs of stations apart" in why) is refused, why
         assert (len(corroborated_runs(pairs, CORROBORATED_RUN_M)) >= 2) is refused
+
+
+@pytest.mark.parametrize("rule", [True, False])
+def test_a_loop_closure_never_joins_a_passage_seen_from_inside(rule, monkeypatch):
+    """s1, s2 in a 4 m x 3 m room, s3 inside the 1 m wide tunnel that leaves its west wall (two parallel
+    walls and the mouth's corners within its 6 m range), matched confidently by s1 only (s2 → s3, the
+    survey's own link, gave nothing). However right the match, those walls would fit the mouth of every
+    passage of that width as well, so the loop closure does not place s3 (without the rule it would);
+    the same match of a scan in the room places it."""
+    from cistern_archive.grid.polygon import polygon_scan
+    from cistern_plugins import site_groups
+
+    if not rule:
+        monkeypatch.setattr(site_groups, "passage_only", lambda *args: False)
+    site = np.array([(0, 0), (4, 0), (4, 3), (0, 3), (0, 2), (-12, 2), (-12, 1), (0, 1)], float)
+    for third, in_tunnel in (((-3.0, 1.5), True), ((2.0, 1.0), False)):
+        xy = [(1.0, 1.0), (3.0, 2.0), third]
+        scans = [polygon_scan([site], xy[k], 0.0, rng=np.random.default_rng(k), n_beams=400, max_range_m=6.0,
+                              range_noise_m=0.01) for k in range(3)]
+        scans = [RangeScan(s.bearings_rad, s.ranges_m, 0.0, 1.0, 6.0, 0.05, 0.05, station=f"s{k + 1}")
+                 for k, s in enumerate(scans)]
+
+        def at(i, j):
+            d = np.subtract(xy[j], xy[i])
+            return MatchResult(i, j, float(d[0]), float(d[1]), 0.0, 1.0, True, 1, 0.0, confidence=0.97)
+
+        poses = SiteGraphLocalizer().localize(scans, [at(0, 1), at(1, 0), at(0, 2)], SiteGraphParams())
+        assert poses.placed.tolist() == [True, True, not (in_tunnel and rule)]
+        if in_tunnel and rule:
+            assert "s1 → s3: converged, but no link strong enough" in poses.reasons[2]
+            assert "passage seen from inside" in poses.reasons[2]
+

@@ -183,7 +183,31 @@ def cell_centres(raster: Raster) -> tuple[np.ndarray, np.ndarray]:
 def wall_spread(cloud: Cloud) -> float:
     """How evenly a cloud's walls face every way: the smaller eigenvalue of the mean ``n n^T`` of its wall
     normals over the larger (1 for a round room, 0 for two parallel walls: a tunnel seen from inside)."""
-    if len(cloud.normals) < 3:
+    return moment_spread(cloud.normals.T @ cloud.normals, len(cloud.normals))
+
+
+def normal_moment(scan: RangeScan) -> tuple[np.ndarray, int]:
+    """The sum of ``n n^T`` over one scan's traced wall normals (in its own frame) and their number: what
+    :func:`placed_spread` adds up for a group of placed scans without building its :class:`Cloud`."""
+    p = scan_points(scan)
+    _, n = wall_trace(p, facing_normals(p))
+    return (n.T @ n if len(n) else np.zeros((2, 2))), len(n)
+
+
+def placed_spread(moments: Sequence[tuple[np.ndarray, int]], turns: Sequence[float]) -> float:
+    """:func:`wall_spread` of scans placed with the headings ``turns``, from their :func:`normal_moment`."""
+    total, count = np.zeros((2, 2)), 0
+    for (moment, n), turn in zip(moments, turns):
+        c, s = math.cos(turn), math.sin(turn)
+        r = np.array([[c, -s], [s, c]])
+        total += r @ moment @ r.T
+        count += n
+    return moment_spread(total, count)
+
+
+def moment_spread(moment: np.ndarray, count: int) -> float:
+    """The smaller eigenvalue of ``moment / count`` over the larger (0 with fewer than three normals)."""
+    if count < 3:
         return 0.0
-    low, high = np.linalg.eigvalsh(cloud.normals.T @ cloud.normals / len(cloud.normals))
+    low, high = np.linalg.eigvalsh(moment / count)
     return float(low / high) if high > 0 else 0.0

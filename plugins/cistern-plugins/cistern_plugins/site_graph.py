@@ -55,7 +55,10 @@ builds a graph over the whole site instead, in three steps.
    match; then confident loop closures, which join two groups of several scans each only when they come
    from two stations on each side (a scan that fell for a look-alike place drags its whole group with
    it, whatever it was matched with; on the tuning seed this refused the two wrong chamber-to-chamber
-   joins and no right one); then sequence links of tentative matches only. Every join must also leave
+   joins and no right one), and never join a group whose walls all run one way (a station inside a
+   tunnel sees two parallel walls and the corners of its mouths, which a match lays as surely onto the
+   mouth of any passage of that width: :func:`~cistern_plugins.site_groups.passage_only`) — such a group
+   joins through its survey chain; then sequence links of tentative matches only. Every join must also leave
    the walls in place (:class:`WallCheck`): placed as the join would place them, no pair of the two
    groups' scans may lay a stretch of wall across the water the other saw (one chamber's opening onto
    a look-alike's solid wall), no two pairs may lay their walls back to back (two chambers side by side
@@ -117,6 +120,7 @@ from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, Mat
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.factor_graph import Edge, GraphParams, poses_from_solution, solve_gated
 from cistern_plugins.factor_graph import spanning_tree
+from cistern_plugins.group_clouds import normal_moment
 from cistern_plugins.group_fit import GroupFitSettings
 from cistern_plugins.settled_groups import recheck_groups
 from cistern_plugins.site_groups import (
@@ -366,10 +370,11 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     loops = [s and c for s, c in zip(strong, confident)]
     tiers = (([s and c for s, c in zip(sequence, strong)], False), (loops, True), (sequence, False))
     walls = WallCheck(scans, p)
+    moments = [normal_moment(scan) for scan in scans]
     while True:
         best, tier = None, 0
         for tier, (bridges, loop_closures) in enumerate(tiers):
-            best = best_cluster(graph, scans, edges, support, bridges, pending, p, loop_closures)
+            best = best_cluster(graph, scans, edges, support, bridges, pending, p, loop_closures, moments)
             if best is not None:
                 break
         if best is None:
@@ -393,7 +398,8 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
             graph.rejected[(e.i, e.j)] = cuts.get(frozenset((e.i, e.j))) or (
                 "converged, but no link strong enough joins its two stations' groups (a loop closure needs "
                 f"confidence {p.bridge_confidence:.2f} or more and, between groups of several scans, two "
-                "stations on each side)" if strong[k] else
+                "stations on each side, and joins no passage seen from inside: its walls fit every passage of "
+                "its width)" if strong[k] else
                 "not converged, and no converged match joins its two stations' groups")
             continue
         solved = graph.pose[e.i].between(graph.pose[e.j])

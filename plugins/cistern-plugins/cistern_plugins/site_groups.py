@@ -17,7 +17,7 @@ from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import AlignmentQuality, ConvergenceThresholds, ReferenceModel
 from cistern_plugins.factor_graph import Edge
-from cistern_plugins.group_clouds import Cloud, wall_spread
+from cistern_plugins.group_clouds import Cloud, placed_spread, wall_spread
 from cistern_plugins.content_cache import ContentCache, scans_digest
 from cistern_plugins.group_fit import GroupFit, about, accept, fit_groups, pose_key
 
@@ -116,14 +116,17 @@ def frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
 
 
 def best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge], support: Sequence[int],
-                  bridges: Sequence[bool], pending: Sequence[int], p: SiteGraphParams, loop_closures: bool = False):
+                  bridges: Sequence[bool], pending: Sequence[int], p: SiteGraphParams, loop_closures: bool = False,
+                  moments: Sequence[tuple[np.ndarray, int]] = ()):
     """The largest-consensus cluster of pending edges between two groups that holds at least one edge
     allowed to join two groups (``bridges``: confident loop closures, or sequence links), as (edge
     indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is none. Other matches never
     join two groups on their own: every scan of a look-alike chamber matches into the same wrong place,
     so such bridges to one group corroborate each other. With ``loop_closures``, a cluster that joins
     two groups of several scans each (at the depth level of the other group: :func:`several_each_side`)
-    must hold bridges from two stations on each side (:func:`seen_from_two_stations`)."""
+    must hold bridges from two stations on each side (:func:`seen_from_two_stations`), and neither group
+    may be a passage seen from inside (:func:`passage_only`, from the scans' ``moments``): it waits until
+    its own survey chain has joined it to more."""
     by_pair: dict[tuple[int, int], list[tuple[int, gtsam.Pose2]]] = {}
     for k in pending:
         e = edges[k]
@@ -141,6 +144,8 @@ def best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge]
                 continue
             if loop_closures and several_each_side(graph, scans, ga, gb, p) \
                     and not seen_from_two_stations(graph, [edges[k2] for k2 in members if bridges[k2]], ga):
+                continue
+            if loop_closures and moments and any(passage_only(graph, moments, g, p) for g in (ga, gb)):
                 continue
             score = sum(1 + support[k2] for k2 in members)
             if score > best_score:
@@ -328,6 +333,22 @@ class WallCheck:
         return (f"joining its groups would put walls into water other scans saw: a median {100 * median:.0f} % "
                 f"of wall points in the other scan's free space over {len(shares)} pairs "
                 f"(worst {self.label(a)} – {self.label(b)}, {100 * worst:.0f} %)")
+
+
+PASSAGE_MIN_NORMALS = 20
+"""Fewer traced wall normals than this say nothing about which way a group's walls run."""
+
+
+def passage_only(graph: Graph, moments: Sequence[tuple[np.ndarray, int]], g: int, p: SiteGraphParams) -> bool:
+    """Whether the walls of group ``g`` all run one way (:func:`~cistern_plugins.group_clouds.placed_spread`
+    below the group fit's ``min_spread``): a station inside a tunnel sees two parallel walls and the
+    corners of its mouths, which fit the mouth of every passage of that width in the site as well as its
+    own, however sure the match — as the group fit, such a group joins through its sequence links only."""
+    members = graph.members(g)
+    if sum(moments[k][1] for k in members) < PASSAGE_MIN_NORMALS:
+        return False
+    spread = placed_spread([moments[k] for k in members], [graph.pose[k].theta() for k in members])
+    return spread < p.group_settings().min_spread
 
 
 def several_each_side(graph: Graph, scans: Sequence[RangeScan], ga: int, gb: int, p: SiteGraphParams) -> bool:
