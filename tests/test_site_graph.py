@@ -435,4 +435,3 @@ def test_a_loop_closure_never_joins_a_passage_seen_from_inside(rule, monkeypatch
         if in_tunnel and rule:
             assert "s1 → s3: converged, but no link strong enough" in poses.reasons[2]
             assert "passage seen from inside" in poses.reasons[2]
-

@@ -58,8 +58,8 @@ builds a graph over the whole site instead, in three steps.
    joins and no right one), and never join a group whose walls all run one way (a station inside a
    tunnel sees two parallel walls and the corners of its mouths, which a match lays as surely onto the
    mouth of any passage of that width: :func:`~cistern_plugins.site_groups.passage_only`) — such a group
-   joins through its survey chain; then sequence links of tentative matches only. Every join must also leave
-   the walls in place (:class:`WallCheck`): placed as the join would place them, no pair of the two
+   joins through its survey chain; then sequence links of tentative matches only. Every join must also
+   leave the walls in place (:class:`WallCheck`): placed as the join would place them, no pair of the two
    groups' scans may lay a stretch of wall across the water the other saw (one chamber's opening onto
    a look-alike's solid wall), no two pairs may lay their walls back to back (two chambers side by side
    with no rock between them), and in the last two tiers the median share of wall points in the other
