@@ -116,8 +116,8 @@ def frame_offset(graph: Graph, e: Edge) -> gtsam.Pose2:
 
 
 def best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge], support: Sequence[int],
-                  bridges: Sequence[bool], pending: Sequence[int], p: SiteGraphParams, loop_closures: bool = False,
-                  moments: Sequence[tuple[np.ndarray, int]] = ()):
+                  bridges: Sequence[bool], pending: Sequence[int], p: SiteGraphParams, loop_closures: bool,
+                  moments: Sequence[tuple[np.ndarray, int]]):
     """The largest-consensus cluster of pending edges between two groups that holds at least one edge
     allowed to join two groups (``bridges``: confident loop closures, or sequence links), as (edge
     indices, (i, j, z)) ready for :func:`_merge`, or ``None`` when there is none. Other matches never
@@ -138,14 +138,14 @@ def best_cluster(graph: Graph, scans: Sequence[RangeScan], edges: Sequence[Edge]
         by_pair.setdefault(key, []).append((k, offset))
     best, best_score = None, -1.0
     for (ga, gb), items in sorted(by_pair.items()):
+        if loop_closures and any(passage_only(graph, moments, g, p) for g in (ga, gb)):
+            continue
         for k, offset in items:
             members = [k2 for k2, o2 in items if close_enough(offset.between(o2), p, offset)]
             if not any(bridges[k2] for k2 in members):
                 continue
             if loop_closures and several_each_side(graph, scans, ga, gb, p) \
                     and not seen_from_two_stations(graph, [edges[k2] for k2 in members if bridges[k2]], ga):
-                continue
-            if loop_closures and moments and any(passage_only(graph, moments, g, p) for g in (ga, gb)):
                 continue
             score = sum(1 + support[k2] for k2 in members)
             if score > best_score:
