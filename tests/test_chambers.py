@@ -207,6 +207,25 @@ def test_settings_bring_the_vehicle_back_to_the_first_chamber_for_a_last_station
         assert np.hypot(*(others - [last.x_m, last.y_m]).T).min() > 0.3
 
 
+def test_a_return_station_finds_room_in_a_small_chamber_full_of_stations():
+    """Seed 35's 40 sites hold a 4.4 m x 3.2 m first chamber with no place 0.8 m from all of its
+    stations: the return station stands as far from them as they stand from each other, and the other
+    sites draw the same stations as they would have (the seeds measured before keep their sites)."""
+    sites = random_cisterns(40, seed=35, settings=GeneratorSettings(return_to_start=True))
+    plain = random_cisterns(40, seed=35)
+    crowded = 0
+    for a, b in zip(plain, sites):
+        assert b.spec.stations[:-1] == a.spec.stations
+        first = b.layout.to_map(b.layout.chambers[0].ring())
+        last = b.spec.stations[-1]
+        assert last.name == "r1" and contains([first], np.array([[last.x_m, last.y_m]]))[0]
+        others = np.array([[s.x_m, s.y_m] for s in b.spec.stations[:-1]])
+        nearest = np.hypot(*(others - [last.x_m, last.y_m]).T).min()
+        assert nearest > 0.3
+        crowded += nearest < 0.8
+    assert crowded >= 1
+
+
 def test_settings_set_the_sonar_and_its_other_effects():
     settings = GeneratorSettings(bin_m=0.08, step_deg=1.8, sonar={"beam_width_deg": 4.0}, effects={"speckle_looks": 1.0})
     for cistern in random_cisterns(10, seed=7, settings=settings):

@@ -323,12 +323,13 @@ class Station:
 
 
 def _chamber_stations(rng: np.random.Generator, chamber: Chamber, site_ring: np.ndarray, n: int,
-                      prefix: str, taken: list[np.ndarray], pillars: Sequence[np.ndarray] = ()) -> list[Station]:
+                      prefix: str, taken: list[np.ndarray], pillars: Sequence[np.ndarray] = (),
+                      sharing: int = 0) -> list[Station]:
     """``n`` stations inside ``chamber``, outside its ``pillars``, some near a wall (or a pillar), apart by
     MIN_SPACING_M (less when many stations share a small chamber: half the side of the area each would
-    have)."""
+    have, ``sharing`` of them placed there already)."""
     ring = chamber.ring()
-    spacing = min(MIN_SPACING_M, 0.5 * math.sqrt(abs(_area(ring)) / n))
+    spacing = min(MIN_SPACING_M, 0.5 * math.sqrt(abs(_area(ring)) / (n + sharing)))
     lo, hi = ring.min(axis=0), ring.max(axis=0)
     found: list[tuple[np.ndarray, str]] = []
     for _ in range(4000):
@@ -347,6 +348,19 @@ def _chamber_stations(rng: np.random.Generator, chamber: Chamber, site_ring: np.
         raise ValueError(f"could not place {n} stations in a {chamber.extent_m()} m chamber")
     order = visiting_order(np.array([p for p, _ in found]))
     return [Station(f"{prefix}{k + 1}", found[i][0], found[i][1]) for k, i in enumerate(order)]
+
+
+def return_station(rng: np.random.Generator, layout: Layout, planned: list[Station],
+                   pillars: Sequence[np.ndarray]) -> Station:
+    """The station ``r1`` in the first chamber, apart from every planned station as far as the first
+    chamber's own stations are from each other where it has no room at ``MIN_SPACING_M``."""
+    taken = [s.xy for s in planned]
+    first = layout.chambers[0]
+    try:
+        return _chamber_stations(rng, first, layout.site_ring, 1, "r", taken, pillars)[0]
+    except ValueError:  # a small chamber full of stations
+        inside = int(contains([first.ring()], np.array(taken)).sum())
+        return _chamber_stations(rng, first, layout.site_ring, 1, "r", taken, pillars, sharing=inside)[0]
 
 
 def visiting_order(points: np.ndarray) -> list[int]:
@@ -486,8 +500,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
     returned = rng.spawn(1)[0] if settings.return_to_start else None  # its draws: a generator of its own
     back = None
     if returned is not None:
-        back = _chamber_stations(returned, layout.chambers[0], layout.site_ring, 1, "r",
-                                 [s.xy for s in planned], pillars)[0]
+        back = return_station(returned, layout, planned, pillars)
         planned.append(back)
         xy = np.vstack([xy, layout.to_map(back.xy[None])])
         yaws = np.append(yaws, headings(xy[-2:], returned)[-1])
