@@ -91,3 +91,75 @@ def test_inliers_are_counted_as_points_at_the_calibration_step(seed):
     assert coarse.equivalent_inliers == pytest.approx(fine.equivalent_inliers, rel=0.1)
     assert coarse.weak_std_m == pytest.approx(fine.weak_std_m, rel=0.2)
     assert coarse.line_rms_m <= coarse.rms_m
+
+
+def silent_scan(heard_deg: tuple[float, float], *, step_deg: float = 0.9, range_m: float = 3.0) -> RangeScan:
+    """A full turn hearing a wall ``range_m`` off on the bearings from ``heard_deg[0]`` up to
+    ``heard_deg[1]`` (degrees, wrapping through 0) and nothing on the others."""
+    bearings = np.arange(0.0, 360.0, step_deg)
+    lo, hi = heard_deg
+    heard = (np.mod(bearings - lo, 360.0) < np.mod(hi - lo, 360.0))
+    ranges = np.where(heard, range_m, np.nan)
+    return RangeScan(bearings_rad=np.radians(bearings), ranges_m=ranges, yaw_rad=0.0, depth_m=1.0, max_range_m=6.0,
+                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+
+
+def test_a_wide_run_of_silent_beams_saw_open_water_out_to_a_share_of_the_range():
+    """Walls heard on three quarters of the turn and a quarter silent (a corner of a chamber larger than
+    the sonar's range): the silent quarter saw water out to ``OPEN_RANGE_SHARE`` of the 6 m range, and
+    nothing about what lies beyond; on its edges the heard beams' cones still bound it. Only for the
+    checks that ask for it (``open_sector_rad``): by default a silent beam says nothing."""
+    from cistern_plugins.alignment import OPEN_RANGE_SHARE
+
+    scan = silent_scan((270.0, 180.0))  # silent from 180° to 270°, across no wrap
+    wide = FreeSpace(scan, open_sector_rad=math.radians(20.0))
+    open_m = OPEN_RANGE_SHARE * 6.0
+    assert wide.in_free_space(point_at(225.0, open_m - 0.5), margin_m=0.1)[0]
+    assert not wide.in_free_space(point_at(225.0, open_m + 0.5), margin_m=0.1)[0]
+    assert not wide.in_free_space(point_at(180.0, open_m - 0.5), margin_m=0.1)[0]  # in the cone of a heard beam
+    assert not FreeSpace(scan).in_free_space(point_at(225.0, 2.0), margin_m=0.1)[0]
+    assert wide.visible(point_at(225.0, 5.5), tolerance_m=0.1)[0]  # what may hide a point is unchanged
+
+
+def test_a_narrow_silent_run_or_a_scan_that_heard_nothing_says_nothing():
+    """Ten silent beams (9°, a far wall met obliquely too faint to answer) claim no water, whether the
+    run lies in the middle of the turn or across its start, nor do the silent ends of a sector scan, 200°
+    apart across the bearings it never swept; a scan that heard nothing at all tells open water from a
+    sonar that failed in no way, and claims none either."""
+    for heard in ((99.0, 90.0), (9.0, 0.0)):  # silent 90°–99°, and 0°–9° across the wrap
+        free = FreeSpace(silent_scan(heard), open_sector_rad=math.radians(20.0))
+        assert not free.in_free_space(point_at(heard[1] + 4.5, 2.0), margin_m=0.1)[0]
+    wrapped = FreeSpace(silent_scan((40.0, 330.0)), open_sector_rad=math.radians(20.0))  # 330°–40° silent
+    assert wrapped.in_free_space(point_at(5.0, 2.0), margin_m=0.1)[0]
+    sector = np.arange(100.0, 260.0, 0.9)  # a sector scan silent for 9° at either end: two runs, not one
+    ends = np.where((sector < 109.0) | (sector > 251.0), np.nan, 3.0)
+    scan = RangeScan(bearings_rad=np.radians(sector), ranges_m=ends, yaw_rad=0.0, depth_m=1.0, max_range_m=6.0,
+                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    assert not FreeSpace(scan, open_sector_rad=math.radians(10.0)).in_free_space(point_at(255.0, 2.0), 0.1)[0]
+    bearings = np.radians(np.arange(0.0, 360.0, 0.9))
+    deaf = RangeScan(bearings_rad=bearings, ranges_m=np.full(len(bearings), np.nan), yaw_rad=0.0, depth_m=1.0,
+                     max_range_m=6.0, bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    assert not FreeSpace(deaf, open_sector_rad=math.radians(20.0)).in_free_space(point_at(90.0, 2.0), 0.1)[0]
+
+
+def test_a_corner_heard_alone_is_no_corner_of_a_smaller_room():
+    """A station 1 m from the corner of a 14 m x 10 m chamber, its sonar reaching 6 m, hears the corner's
+    two walls and nothing to the north-east. A 5 m x 4 m room's corner fits those walls exactly; laid
+    there, that room's other two walls cross the water the first sonar saw in its silent quarter, and
+    the fit is refused. A station of the same large chamber at its true place is not."""
+    from cistern_archive.grid.polygon import polygon_scan
+    from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel, hard_limits
+
+    rng = np.random.default_rng(3)
+    hall = np.array([[0.0, 0.0], [14.0, 0.0], [14.0, 10.0], [0.0, 10.0]])
+    room = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 4.0], [0.0, 4.0]])
+    corner = polygon_scan([hall], (1.0, 1.0), 0.0, rng=rng, n_beams=400, max_range_m=6.0, range_noise_m=0.01)
+    small = polygon_scan([room], (2.5, 2.0), 0.0, rng=rng, n_beams=400, max_range_m=6.0, range_noise_m=0.01)
+    same_hall = polygon_scan([hall], (3.0, 2.5), 0.0, rng=rng, n_beams=400, max_range_m=6.0, range_noise_m=0.01)
+    limits = ConvergenceThresholds()
+    model = ReferenceModel(corner)
+    look_alike = model.assess_pair(small, np.array([1.5, 1.0, 0.0]), limits)
+    assert look_alike.violation_run_m > limits.max_violation_run_m
+    assert "free space" in hard_limits(look_alike, limits)
+    right = model.assess_pair(same_hall, np.array([2.0, 1.5, 0.0]), limits)
+    assert right.violation_run_m == 0.0 and hard_limits(right, limits) == ""

@@ -319,6 +319,15 @@ BLIND_RANGE_M = 0.7
 """Walls closer than this to a sonar may hide in its blanking range (:meth:`FreeSpace.shadowed`)."""
 SHADOW_WIDTH_M = 0.1
 """Width of the wall each of those echoes stands for."""
+OPEN_RANGE_SHARE = 0.75
+"""A beam that heard no wall saw water out to this share of the sonar's range, where it says so at all
+(:class:`FreeSpace`). Not to all of it: the last decimetres of a range hold no detections (the shadow
+test needs water behind a wall), and a far wall met obliquely may answer too weakly to be segmented."""
+RUN_GAP_STEPS = 3.0
+"""Beams farther apart than this many median steps are not consecutive (:func:`silent_runs`)."""
+OPEN_SECTOR_DEG = 20.0
+"""A run of consecutive beams at least this wide that all heard nothing looked into open water: its
+walls lie beyond what the sonar hears (a chamber larger than the range), not behind a few faint echoes."""
 
 
 class FreeSpace:
@@ -339,10 +348,15 @@ class FreeSpace:
     "2026-12-05 (session 4)"). What a neighbour's cone met may still hide what lies behind it on that
     bearing, so visibility (:meth:`visible`) keeps the cone's bound there. With ``open_range_m`` a beam
     with no echo saw water out to that range (a wall within the sonar's range would have answered), as
-    an occupancy grid reads it.
+    an occupancy grid reads it. With ``open_sector_rad`` only the beams of a run of silent beams that
+    wide or wider did (:func:`silent_runs`), out to ``OPEN_RANGE_SHARE`` of the range: a station in the
+    corner of a chamber larger than its sonar's range hears the corner's two walls and nothing across
+    the chamber, and that silence is what tells its corner from the corner of a smaller room, whose
+    other walls would lie in it (:class:`ReferenceModel` judges every match so).
     """
 
-    def __init__(self, scan: RangeScan, *, cone: bool = True, open_range_m: float | None = None):
+    def __init__(self, scan: RangeScan, *, cone: bool = True, open_range_m: float | None = None,
+                 open_sector_rad: float | None = None):
         angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
         order = np.argsort(angles, kind="stable")
         self.angles = angles[order]
@@ -352,14 +366,21 @@ class FreeSpace:
         step = 2 * np.pi / max(len(angles), 1)
         self.tolerance_rad = 1.5 * step
         heard = np.isfinite(ranges)
-        if cone and scan.beam_width_rad > 0:  # bounded by the echoes of the beams whose cones reach it
-            ranges = _cone_minimum(self.angles, ranges, erosion_reach(self.angles, float(scan.beam_width_rad)))
-        self.ranges = ranges
+        reach = erosion_reach(self.angles, float(scan.beam_width_rad)) if cone and scan.beam_width_rad > 0 else 0.0
+        self.ranges = _cone_minimum(self.angles, ranges, reach) if reach > 0 else ranges
         """On each bearing, the nearest echo of the beams whose cones reach it: what may hide a point
         (:meth:`visible`)."""
-        self.free_ranges = np.where(heard, ranges, np.nan)
-        """The same on the bearings of beams that heard an echo, unknown on the others: how far the
-        sonar saw water (:meth:`in_free_space`, :meth:`violation_mask`)."""
+        free = self.ranges
+        if open_sector_rad is not None and open_range_m is None:  # a wide silent run saw open water
+            wide = silent_runs(self.angles, heard, open_sector_rad)
+            if wide.any():
+                heard = heard | wide
+                free = np.where(wide, OPEN_RANGE_SHARE * float(scan.max_range_m), ranges)
+                free = _cone_minimum(self.angles, free, reach) if reach > 0 else free
+        self.free_ranges = np.where(heard, free, np.nan)
+        """The same on the bearings of beams that heard an echo, and of a wide run of beams that heard
+        none out to ``OPEN_RANGE_SHARE`` of the range; unknown on the others: how far the sonar saw water
+        (:meth:`in_free_space`, :meth:`violation_mask`)."""
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -461,6 +482,32 @@ def erosion_reach(angles: np.ndarray, beam_width_rad: float) -> float:
     return max(half_cone, 1.5 * step)
 
 
+def silent_runs(angles: np.ndarray, heard: np.ndarray, min_width_rad: float) -> np.ndarray:
+    """Mask of the beams (``angles`` sorted in [0, 2π)) in a run of consecutive beams that heard nothing
+    spanning ``min_width_rad`` or more, from the first beam of the run to the last (cyclically). Beams
+    more than ``RUN_GAP_STEPS`` steps apart are not consecutive: the two ends of a sector scan do not
+    join into one run. A scan that heard nothing at all has no such run: nothing tells open water from a
+    sonar that failed."""
+    n = len(angles)
+    out = np.zeros(n, dtype=bool)
+    if n < 2 or heard.all() or not heard.any():
+        return out
+    gaps = np.mod(np.diff(angles, append=angles[0] + 2 * np.pi), 2 * np.pi)  # gaps[k]: beam k to beam k + 1
+    apart = gaps > RUN_GAP_STEPS * float(np.median(gaps))
+    start = int(np.flatnonzero(heard)[-1]) + 1  # read cyclically from just after a heard beam
+    run: list[int] = []
+    width = 0.0
+    for k in (start + np.arange(n + 1)) % n:
+        if heard[k] or (run and apart[run[-1]]):
+            if run and width >= min_width_rad:
+                out[run] = True
+            run, width = [], 0.0
+        if not heard[k]:
+            width += gaps[run[-1]] if run else 0.0
+            run.append(int(k))
+    return out
+
+
 def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:
     """For every beam (``angles`` sorted in [0, 2π)), the nearest finite echo among the beams within
     ``half_cone_rad`` of it (cyclically); ``nan`` where none of them has an echo."""
@@ -494,7 +541,7 @@ class ReferenceModel:
         self.max_range_m = float(reference.max_range_m)
         self.tree = cKDTree(self.points) if len(self.points) else None
         self.normals = estimate_normals(self.points, self.tree) if len(self.points) >= 3 else np.zeros((0, 2))
-        self.free = FreeSpace(reference)
+        self.free = FreeSpace(reference, open_sector_rad=math.radians(OPEN_SECTOR_DEG))
         self.weight = point_weight(reference)
 
     def assess(self, moved: np.ndarray, inlier_distance_m: float, weight: float = 1.0) -> AlignmentQuality:
@@ -514,7 +561,7 @@ class ReferenceModel:
         q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
                              seen, moving_origin=np.asarray(pose[:2], dtype=np.float64), weight=point_weight(moving))
         back = transform(self.points, inverse(pose))
-        mov_free = FreeSpace(moving)
+        mov_free = FreeSpace(moving, open_sector_rad=math.radians(OPEN_SECTOR_DEG))
         mov_tree = cKDTree(src) if len(src) >= 3 else None
         mov_normals = estimate_normals(src, mov_tree) if mov_tree is not None else None
         bad1, seen1 = self.free.violation_mask(moved, limits.free_space_margin_m,

@@ -13,7 +13,8 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.alignment import GRAZING_DEG, FreeSpace, estimate_normals, rotate, scan_points, transform
+from cistern_plugins.alignment import (GRAZING_DEG, OPEN_RANGE_SHARE, FreeSpace, estimate_normals, rotate, scan_points,
+                                       transform)
 
 ORIENTATIONS = 8
 """Wall orientations are binned in eighths of a turn for the search, in sixteenths for the refinement
@@ -23,10 +24,6 @@ AGREE_DEG = 67.5
 90°), so the two sides of one wall never agree."""
 FREE_MARGIN_M = 0.3
 """Free space ends this far in front of a sonar's echo (as the correlative matcher's penalty does)."""
-OPEN_RANGE_SHARE = 0.75
-"""A beam that heard no wall saw water out to this share of the sonar's range. Not to all of it: the
-last decimetres of a range hold no detections (the shadow test needs water behind a wall), and a far
-wall met obliquely may answer too weakly to be segmented."""
 BORDER_M = 1.0
 STATION_RADIUS_M = 0.3
 """No wall lies this close to a station: the vehicle floated there."""
