@@ -240,3 +240,28 @@ def test_a_direction_the_peak_cannot_resolve_is_read_from_the_score_profile():
     plateau = _Profile(lambda x: 100.0 - 50.0 * max(0.0, abs(x) - 0.5) ** 2)
     assert profile_sigma(plateau, pose, along) == pytest.approx(0.8 * math.sqrt(SCORE_TEMPERATURE / (2 * 4.5)))
     assert profile_sigma(_Profile(lambda x: 100.0), pose, along) == MAX_SIGMA
+
+
+def test_a_return_to_the_first_chamber_does_not_make_the_last_one_its_neighbour(monkeypatch):
+    """The survey of the test above comes back to the west chamber for a last station, ``r1``, recorded
+    right after the east chamber's last and matched only with the west chamber's stations: the vehicle
+    came back through a passage it recorded nothing in, so ``r1`` says nothing of where the east chamber
+    lies, and the two chambers, visited two stations apart otherwise, are not fitted as wholes. Counted
+    as the east chamber's neighbour (without the rule), ``r1`` lets the fit join them."""
+    import cistern_plugins.site_groups as site_groups
+
+    rng = np.random.default_rng(9)
+    elsewhere = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 5.0], [0.0, 5.0]]) + [40.0, 0.0]
+    back = (2.0, 2.0)
+    scans = [_scan(p, rng, f"w{k + 1}") for k, p in enumerate(WEST)]
+    scans += [polygon_scan([elsewhere], (41.5, 1.5 + k), 0.0, rng=rng, n_beams=400, max_range_m=6.0) for k in range(2)]
+    scans += [_scan(p, rng, f"e{k + 1}") for k, p in enumerate(EAST)] + [_scan(back, rng, "r1")]
+    positions = WEST + [(41.5, 1.5), (41.5, 2.5)] + EAST + [back]
+    west, east = [0, 1, 2, 8], [5, 6, 7]
+    matches = [_match(i, j, positions) for side in (west, east) for i in side for j in side if i != j]
+    graph = consistent_edges(scans, matches, SiteGraphParams())
+    assert graph.group[8] == graph.group[0] and not site_groups.joined_in_sequence(graph, 8)
+    assert graph.group[5] != graph.group[0] and "visited 2 stations between them" in graph.unjoined[5]
+    monkeypatch.setattr(site_groups, "joined_in_sequence", lambda graph, k: True)
+    graph = consistent_edges(scans, matches, SiteGraphParams())
+    assert graph.group[5] == graph.group[0]

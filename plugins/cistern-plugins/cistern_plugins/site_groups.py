@@ -436,6 +436,25 @@ def survey_gap(a: Sequence[int], b: Sequence[int]) -> int:
     return min(abs(i - j) for i in a for j in b)
 
 
+RETURN_PLACES = 3
+"""A station whose every link joins it to stations visited this many places or more before it came back
+to them (:func:`joined_in_sequence`). Two places back is the survey's chain skipping one station whose
+own matches failed (a station in a tunnel): the vehicle passed there, and the skipped station lies
+between."""
+
+
+def joined_in_sequence(graph: Graph, k: int) -> bool:
+    """Whether station ``k`` stands where the survey's chain left it: alone in its group, or joined to it
+    by a link (a match, a fit or a vertical tie) with a station visited at most two places before it, or
+    after it. A station whose every link joins it to stations visited ``RETURN_PLACES`` or more places
+    before it came back to them — a return to the first chamber at the end of a survey — through
+    passages the survey did not record, so the station visited just before it need not be near it, and
+    a group fit may not count the two as visited one after the other."""
+    links = [(e.i, e.j) for e in (*graph.edges, *graph.ties)] + graph.fitted
+    ends = [j if i == k else i for i, j in links if k in (i, j)]
+    return not ends or max(ends) > k - RETURN_PLACES
+
+
 def far_apart_reason(gap: int, max_gap: int) -> str:
     """Why two groups visited ``gap`` places apart are not fitted as wholes (:func:`join_by_fit`)."""
     between = gap - 1
@@ -449,10 +468,10 @@ def far_apart_reason(gap: int, max_gap: int) -> str:
 def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams) -> list[Edge]:
     """Join groups that no match could join by fitting them as wholes (:mod:`cistern_plugins.group_fit`):
     each round, every pair of groups at one depth level that the survey visited at most ``group_max_gap``
-    places apart (:func:`survey_gap`) is fitted and the clearest accepted fit that
-    passes the wall check merges its two groups; until no fit joins two groups. Returns the edges added
-    (one per join); the reasons of the fits refused are kept in ``graph.unjoined`` for every scan
-    outside the largest group."""
+    places apart (:func:`survey_gap`, over the stations :func:`joined_in_sequence`) is fitted and the
+    clearest accepted fit that passes the wall check merges its two groups; until no fit joins two
+    groups. Returns the edges added (one per join); the reasons of the fits refused are kept in
+    ``graph.unjoined`` for every scan outside the largest group."""
     digest = scans_digest(scans)
     added: list[Edge] = []
     while True:
@@ -464,7 +483,7 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
         for x, ga in enumerate(groups):
             for gb in groups[x + 1:]:
                 big, small = (ga, gb) if len(members[ga]) >= len(members[gb]) else (gb, ga)
-                gap = survey_gap(members[big], members[small])
+                gap = survey_gap(*([k for k in members[g] if joined_in_sequence(graph, k)] for g in (big, small)))
                 if gap > p.group_max_gap:
                     why = (f"not fitted as a group with {walls.label(members[big][0])}'s group: "
                            f"{far_apart_reason(gap, p.group_max_gap)}")
