@@ -479,11 +479,12 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
         if len(groups) < 2:
             return added
         members = {g: graph.members(g) for g in groups}
+        anchors = {g: [k for k in members[g] if joined_in_sequence(graph, k)] for g in groups}
         candidates, far_apart = [], []
         for x, ga in enumerate(groups):
             for gb in groups[x + 1:]:
                 big, small = (ga, gb) if len(members[ga]) >= len(members[gb]) else (gb, ga)
-                gap = survey_gap(*([k for k in members[g] if joined_in_sequence(graph, k)] for g in (big, small)))
+                gap = survey_gap(anchors[big], anchors[small])
                 if gap > p.group_max_gap:
                     why = (f"not fitted as a group with {walls.label(members[big][0])}'s group: "
                            f"{far_apart_reason(gap, p.group_max_gap)}")
