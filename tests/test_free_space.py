@@ -121,6 +121,37 @@ def test_a_wide_run_of_silent_beams_saw_open_water_out_to_a_share_of_the_range()
     assert wide.visible(point_at(225.0, 5.5), tolerance_m=0.1)[0]  # what may hide a point is unchanged
 
 
+def test_a_silent_run_saw_water_no_farther_than_the_noise_lets_the_sonar_hear():
+    """The same quarter silent with the range set to 20 m: beyond the scan's detection range (9 m) the
+    receiver's noise hid any wall, so the silence there claims no water, whatever share of the range."""
+    import dataclasses
+
+    from cistern_plugins.alignment import open_water_m
+
+    scan = dataclasses.replace(silent_scan((270.0, 180.0)), max_range_m=20.0, detection_range_m=9.0)
+    assert open_water_m(scan) == 9.0
+    assert open_water_m(dataclasses.replace(scan, detection_range_m=math.inf)) == 15.0
+    wide = FreeSpace(scan, open_sector_rad=math.radians(20.0))
+    assert wide.in_free_space(point_at(225.0, 8.5), margin_m=0.1)[0]
+    assert not wide.in_free_space(point_at(225.0, 9.5), margin_m=0.1)[0]
+
+
+def test_a_group_sees_water_behind_a_silent_beam_no_farther_than_its_scan_could_hear():
+    """A group's water (:class:`~cistern_plugins.group_clouds.Cloud`): every beam that heard nothing saw
+    water out to 0.75 of the range — with the range set to 20 m, 15 m through the rock of a site 10 m
+    across — and no farther than where the receiver's noise began to hide walls."""
+    import dataclasses
+
+    from cistern_plugins.group_clouds import Cloud
+
+    few = dataclasses.replace(silent_scan((9.0, 0.0)), max_range_m=20.0)  # silent from 0° to 9°
+    origin = np.zeros(3)
+    assert Cloud([few], [origin]).in_free_space(point_at(4.5, 12.0)).any()
+    heard_to_9m = dataclasses.replace(few, detection_range_m=9.0)
+    assert Cloud([heard_to_9m], [origin]).in_free_space(point_at(4.5, 8.0)).any()
+    assert not Cloud([heard_to_9m], [origin]).in_free_space(point_at(4.5, 12.0)).any()
+
+
 def test_a_narrow_silent_run_or_a_scan_that_heard_nothing_says_nothing():
     """Ten silent beams (9°, a far wall met obliquely too faint to answer) claim no water, whether the
     run lies in the middle of the turn or across its start, nor do the silent ends of a sector scan, 200°

@@ -351,3 +351,54 @@ def test_full_turn_is_told_from_a_sector():
     assert segmentation.full_turn(np.delete(turn, [10, 11, 12]))  # a few beams lost
     assert not segmentation.full_turn(turn[:100])  # a 90° sector
     assert not segmentation.full_turn(turn[:5])
+
+
+# --- the end of a long range: receiver noise lifted by the time-varying gain ---------------------------
+
+def _gallery_at_long_range(seed: int):
+    """A plastered gallery 12 m x 3 m with the head's range set to 20 m (500 bins of 4 cm): beams that
+    graze its long walls hear them too faintly, and beyond every wall a beam holds only the receiver's
+    noise, which the time-varying gain lifts above the threshold towards the end of the range."""
+    return simulate_scan([np.array([[0, 0], [12.0, 0], [12.0, 3.0], [0, 3.0]])], TruePose("t", 1.5, 1.2, 0.3, 1.5),
+                         SonarSpec(range_m=20.0, bins=500), EffectsSpec(wall_roughness=0.03),
+                         np.random.default_rng(seed), water_depth_m=3.0)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_shadow_takes_little_noise_beyond_the_walls_at_a_long_range(seed, monkeypatch):
+    settings = Segmentation(method="shadow", min_range_m=0.4)
+    sim = _gallery_at_long_range(seed)
+    tol = 2 * sim.scan.bin_size_m
+
+    def outcome(scan):
+        """Echoes more than 0.5 m behind the wall; share of beams on it (within two bins)."""
+        error = scan.ranges_m - sim.truth_ranges_m
+        return int(np.sum(error > 0.5)), float(np.mean(np.abs(error) <= tol))
+
+    scan = segment(sim.scan, settings)
+    monkeypatch.setattr(segmentation, "noise_limited", lambda common, threshold, far: np.zeros(common.shape, bool))
+    unchecked = segment(sim.scan, settings)
+    (behind, hit), (behind_unchecked, hit_unchecked) = outcome(scan), outcome(unchecked)
+    assert behind_unchecked >= 9  # noise taken for walls, metres behind them
+    assert behind <= 1
+    assert hit >= hit_unchecked - 0.015
+    # where the noise passes the threshold by itself, silence says nothing: well short of the 20 m range
+    assert 6.0 < scan.detection_range_m < 12.0
+    assert math.isinf(unchecked.detection_range_m)
+
+
+def test_noise_limited_starts_where_the_level_stays_above_the_threshold_to_the_end():
+    far = np.arange(10) >= 1
+    common = np.array([90, 10, 80, 20, 30, 60, 70, 55, 65, 80], dtype=float)  # a wall at bin 2, noise from 5 on
+    assert_array_equal(np.flatnonzero(segmentation.noise_limited(common, 50.0, far)), [5, 6, 7, 8, 9])
+    assert not segmentation.noise_limited(common[:5], 50.0, far[:5]).any()
+
+
+def test_a_detection_needs_both_neighbouring_beams_near_its_range():
+    detections = np.zeros((6, 20), dtype=bool)
+    detections[[0, 1, 2], [10, 11, 12]] = True  # a wall over three beams
+    detections[4, 15] = True  # noise on one beam
+    detections[[5, 0], [3, 18]] = True  # noise on beams 5 and 0, far apart in range
+    bearings = np.linspace(0, 2 * math.pi, 6, endpoint=False)[[3, 4, 5, 0, 1, 2]]  # a turn begun mid-way
+    kept = segmentation.beside_both_neighbours(detections[[3, 4, 5, 0, 1, 2]], bearings, 2)
+    assert_array_equal(np.argwhere(kept[[3, 4, 5, 0, 1, 2]]), [[1, 11]])

@@ -178,6 +178,11 @@ class RangeScan:
     odometry : ndarray, shape (3,), or None
         Dead-reckoned ``(x, y, yaw)`` of the vehicle at ``time_s`` (map frame), for localizers that
         use navigation (``nav-graph``); ``None`` without navigation.
+    detection_range_m : float
+        How far the segmentation could tell a wall from the receiver's noise: beyond it the noise,
+        lifted by the time-varying gain, passes the detection threshold by itself on most beams
+        (:func:`cistern_archive.sonar.segmentation.noise_limited`), so a beam that heard nothing there
+        says nothing about walls. ``inf`` when the noise never gets there, or it is not known.
     """
 
     bearings_rad: np.ndarray
@@ -191,6 +196,7 @@ class RangeScan:
     vertical_beam_width_rad: float = VERTICAL_BEAM_WIDTH_RAD
     time_s: float = float("nan")
     odometry: np.ndarray | None = None
+    detection_range_m: float = float("inf")
 
     def __post_init__(self) -> None:
         bearings = np.asarray(self.bearings_rad, dtype=np.float64)

@@ -69,19 +69,32 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        a shadow (a round well seen from its centre, every beam meeting the wall at one range) it is a
        wall, and those ranges are not tested; nor is a sector scan, whose few beams may all meet one
        wall;
-    5. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
+    5. **where the receiver's noise passes the threshold by itself, a wall answers on the neighbouring
+       beams**: the time-varying gain lifts the noise with range, and on a full turn, from the range at
+       which the across-beam median of the smoothed image rises above ``threshold`` for good
+       (:func:`noise_limited`: beyond the walls of a closed site every beam holds only noise), a
+       detection must have detections within ``SHADOW_ECHO_M`` of its range on both neighbouring beams
+       (:func:`beside_both_neighbours`). At 0.9° steps a 3° beam's cone overlaps two neighbours on each side,
+       so a wall meets three or more beams at nearly one range; noise meets one. With the range set to
+       20 m in cisterns of 10 m (4 cm bins) the rule's first three tests had taken that noise for walls on
+       a few beams per scan, metres behind the rock, most of them just before the end of the range
+       (``benchmarks/RESULTS.md``, "2026-12-06 (session 12)"); one neighbour was not witness enough, two
+       neighbours' noise meeting by chance that often. The range where this begins is the scan's
+       ``detection_range_m``: beyond it a beam's silence says nothing;
+    6. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
        and may be stronger; a ghost casts no shadow over the wall in front of it) starts the echo, which
        lasts while the smoothed beam stays above the threshold, for at most ``SHADOW_ECHO_M``; its
        largest smoothed value is the echo's peak. A wall met obliquely returns first from the edge of the
        3° beam nearest to it, so the peak, where the beam's axis meets the wall, can lie a few bins after
        the first detection;
-    6. the range is sub-bin, as in ``cfar`` (step 6).
+    7. the range is sub-bin, as in ``cfar`` (step 6).
 
     Windows are in metres (at least one bin), so heads with 2 mm bins and heads with 6 cm bins see the
     same physical extents. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the tuning
     set and dropped: smoothing across 3 or 5 beams, and keeping only detections that an adjacent beam
-    confirms within 0.08-0.16 m; both missed more walls (grazing ones, whose range changes fast from beam
-    to beam) than they removed false ones. So was looking for the shadow behind the end of a long
+    confirms within 0.08-0.16 m, at every range; both missed more walls (grazing ones, whose range changes
+    fast from beam to beam) than they removed false ones where the noise stays under the threshold (step
+    5 asks for neighbours only where it does not). So was looking for the shadow behind the end of a long
     (grazing) echo rather than behind its leading edge: it accepted leading edges decimetres before the
     wall on the beam's axis.
 
@@ -95,6 +108,7 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
+from scipy import ndimage
 
 from cistern_archive.catalog.models import Segmentation
 from cistern_archive.core.scan import RangeScan, Scan
@@ -286,18 +300,22 @@ def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, gu
     return out
 
 
-def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Detection mask and normalised smoothed image of the ``shadow`` method (steps 1-4).
+def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Detection mask, normalised smoothed image and detection range of the ``shadow`` method (steps 1-5).
 
     Returns
     -------
     detections : ndarray of bool, shape (A, B)
         Bins beyond ``min_range_m`` above ``threshold``, ``SHADOW_LEAD_MARGIN`` above their leading
         training mean, ``SHADOW_MARGIN`` above the median of the water behind them and, on a full turn,
-        ``COMMON_MARGIN`` above the level every beam holds at their range.
+        ``COMMON_MARGIN`` above the level every beam holds at their range in the near field, and beside
+        detections on both neighbouring beams where the receiver noise passes ``threshold`` by itself.
     smooth : ndarray of float64, shape (A, B)
         The image smoothed over 0.12 m along each beam, normalised to 0..255 by its maximum beyond
         ``min_range_m``.
+    detection_range_m : float
+        Where the receiver noise begins to pass ``threshold`` by itself (:func:`noise_limited`; ``inf``
+        when it never does or the scan is no full turn).
     """
     bin_m = scan.bin_size_m
     values = _blank_near(scan, 0.0)
@@ -306,19 +324,53 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple
     far = scan.bin_centres_m >= min_range_m
     peak = float(smooth[:, far].max()) if smooth[:, far].size else 0.0
     if peak <= 0:
-        return np.zeros(smooth.shape, dtype=bool), np.zeros_like(smooth)
+        return np.zeros(smooth.shape, dtype=bool), np.zeros_like(smooth), float("inf")
     smooth *= PAPER_SCALE / peak
     windows = _shadow_windows(bin_m)
     candidates = _rising(smooth, threshold, far, windows)
-    if full_turn(scan.bearings_rad):
-        candidates &= smooth - common_clutter(smooth, threshold, far, bin_m)[None, :] >= COMMON_MARGIN
+    turn = full_turn(scan.bearings_rad)
+    common = np.median(smooth, axis=0) if turn else None
+    if turn:
+        candidates &= smooth - common_clutter(common, threshold, far, bin_m)[None, :] >= COMMON_MARGIN
     beams, bins = np.nonzero(candidates)
     _, _, guard, trail = windows
     behind = _trailing_median(smooth, beams, bins, guard, trail)
     shadowed = smooth[beams, bins] - behind >= SHADOW_MARGIN
     detections = np.zeros_like(candidates)
     detections[beams, bins] = shadowed
-    return detections, np.where(far[None, :], smooth, 0.0)
+    reach = float("inf")
+    if turn:
+        noisy = noise_limited(common, threshold, far)
+        if noisy.any():
+            confirmed = beside_both_neighbours(detections, scan.bearings_rad, _bins(SHADOW_ECHO_M, bin_m))
+            detections[:, noisy] &= confirmed[:, noisy]
+            reach = float(scan.bin_centres_m[int(np.argmax(noisy))])
+    return detections, np.where(far[None, :], smooth, 0.0), reach
+
+
+def noise_limited(common: np.ndarray, threshold: float, far: np.ndarray) -> np.ndarray:
+    """Mask of the ranges where the receiver noise alone passes ``threshold`` (step 5): from the first
+    bin beyond the blanking (``far``) whose across-beam level (``common``) stays above ``threshold`` to
+    the last bin. Beyond the walls of a closed site every beam holds only the receiver's noise, which the
+    time-varying gain lifts with range; a wall that most beams meet at one range (a round well) lifts the
+    level only over its echo, and the water behind it lets it fall again."""
+    below = np.flatnonzero(~(common > threshold) | ~far)
+    start = int(below[-1]) + 1 if below.size else 0
+    mask = np.zeros(common.shape, dtype=bool)
+    mask[start:] = True
+    return mask
+
+
+def beside_both_neighbours(detections: np.ndarray, bearings_rad: np.ndarray, reach_bins: int) -> np.ndarray:
+    """Mask of the detections with a detection on both neighbouring beams (the next bearing either way
+    round the turn) within ``reach_bins`` along the range: a wall answers in the overlapping cones of
+    neighbouring beams (3° wide at 0.9° steps) at nearly one range; receiver noise does not, though at
+    the end of a long range two neighbours' noise does often enough that one is not a witness."""
+    order = np.argsort(np.mod(bearings_rad, 2 * np.pi), kind="stable")
+    spread = ndimage.maximum_filter1d(detections[order].astype(np.uint8), size=2 * reach_bins + 1, axis=1) > 0
+    confirmed = np.empty_like(detections)
+    confirmed[order] = np.roll(spread, 1, axis=0) & np.roll(spread, -1, axis=0)
+    return detections & confirmed
 
 
 def full_turn(bearings_rad: np.ndarray) -> bool:
@@ -331,13 +383,13 @@ def full_turn(bearings_rad: np.ndarray) -> bool:
     return bool(gaps.max() <= FULL_TURN_GAPS * np.median(gaps))
 
 
-def common_clutter(smooth: np.ndarray, threshold: float, far: np.ndarray, bin_m: float) -> np.ndarray:
-    """The level every beam holds at each range (the across-beam median of the smoothed image) over the
-    near field: from ``far``'s first bin as long as that level falls off by ``COMMON_DECAY`` or more over
-    the shadow's window behind (:func:`near_field`); ``-inf`` elsewhere, and over a wall that most beams
-    see at one range (a round well seen from its centre: the median passes the rule's own two tests, it
-    rises above what precedes it and casts a shadow) and its echo's length."""
-    common = np.median(smooth, axis=0)
+def common_clutter(common: np.ndarray, threshold: float, far: np.ndarray, bin_m: float) -> np.ndarray:
+    """The level every beam holds at each range (``common``: the across-beam median of the smoothed
+    image) over the near field: from ``far``'s first bin as long as that level falls off by
+    ``COMMON_DECAY`` or more over the shadow's window behind (:func:`near_field`); ``-inf`` elsewhere,
+    and over a wall that most beams see at one range (a round well seen from its centre: the median
+    passes the rule's own two tests, it rises above what precedes it and casts a shadow) and its echo's
+    length."""
     windows = _shadow_windows(bin_m)
     _, _, guard, trail = windows
     every = np.arange(common.size)
@@ -416,18 +468,23 @@ def _interpolated_ranges(values: np.ndarray, peaks: np.ndarray, centres: np.ndar
 
 def peak_bins(scan: Scan, settings: SegmentationSettings) -> np.ndarray:
     """The echo bin of every beam (-1 for none) under ``settings.method``."""
+    return _peaks_and_reach(scan, settings)[0]
+
+
+def _peaks_and_reach(scan: Scan, settings: SegmentationSettings) -> tuple[np.ndarray, float]:
+    """:func:`peak_bins` and the scan's detection range (``inf`` but for the ``shadow`` method's)."""
     if settings.method not in METHODS:
         raise ValueError(f"unknown segmentation method {settings.method!r}; expected one of {', '.join(METHODS)}")
     if scan.n_bins == 0 or scan.n_beams == 0:
-        return np.full(scan.n_beams, -1, dtype=np.int64)
+        return np.full(scan.n_beams, -1, dtype=np.int64), float("inf")
     if settings.method == "paper":
         normalised = normalise_paper(_blank_near(scan, settings.min_range_m))
-        return paper_peak_bins(normalised, settings.threshold)
+        return paper_peak_bins(normalised, settings.threshold), float("inf")
     if settings.method == "cfar":
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
-        return _first_strong_peaks(detections, smooth)
-    detections, smooth = shadow_detections(scan, settings.threshold, settings.min_range_m)
-    return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m))
+        return _first_strong_peaks(detections, smooth), float("inf")
+    detections, smooth, reach = shadow_detections(scan, settings.threshold, settings.min_range_m)
+    return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m)), reach
 
 
 def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
@@ -446,7 +503,7 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
     RangeScan
         One range per beam; ``nan`` where the beam has no echo.
     """
-    peaks = peak_bins(scan, settings)
+    peaks, reach = _peaks_and_reach(scan, settings)
     centres = scan.bin_centres_m
     if settings.method in ("cfar", "shadow"):
         ranges = _interpolated_ranges(_blank_near(scan, settings.min_range_m), peaks, centres, scan.bin_size_m)
@@ -463,6 +520,7 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
         station=scan.station,
         vertical_beam_width_rad=scan.vertical_beam_width_rad,
         time_s=scan.timestamp,
+        detection_range_m=reach,
     )
 
 

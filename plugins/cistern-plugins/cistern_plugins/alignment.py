@@ -330,6 +330,13 @@ OPEN_SECTOR_DEG = 20.0
 walls lie beyond what the sonar hears (a chamber larger than the range), not behind a few faint echoes."""
 
 
+def open_water_m(scan: RangeScan) -> float:
+    """How far a beam of ``scan`` that heard no wall saw water: ``OPEN_RANGE_SHARE`` of the range, and
+    no farther than the scan's ``detection_range_m``, beyond which the receiver's noise hides walls
+    (a long range setting in a small site)."""
+    return min(OPEN_RANGE_SHARE * float(scan.max_range_m), float(scan.detection_range_m))
+
+
 class FreeSpace:
     """The free space one scan observed: on each map-frame bearing, nothing closer than its echo.
 
@@ -349,7 +356,7 @@ class FreeSpace:
     bearing, so visibility (:meth:`visible`) keeps the cone's bound there. With ``open_range_m`` a beam
     with no echo saw water out to that range (a wall within the sonar's range would have answered), as
     an occupancy grid reads it. With ``open_sector_rad`` only the beams of a run of silent beams that
-    wide or wider did (:func:`silent_runs`), out to ``OPEN_RANGE_SHARE`` of the range: a station in the
+    wide or wider did (:func:`silent_runs`), out to :func:`open_water_m`: a station in the
     corner of a chamber larger than its sonar's range hears the corner's two walls and nothing across
     the chamber, and that silence is what tells its corner from the corner of a smaller room, whose
     other walls would lie in it (:class:`ReferenceModel` judges every match so).
@@ -375,11 +382,11 @@ class FreeSpace:
             wide = silent_runs(self.angles, heard, open_sector_rad)
             if wide.any():
                 heard = heard | wide
-                free = np.where(wide, OPEN_RANGE_SHARE * float(scan.max_range_m), ranges)
+                free = np.where(wide, open_water_m(scan), ranges)
                 free = _cone_minimum(self.angles, free, reach) if reach > 0 else free
         self.free_ranges = np.where(heard, free, np.nan)
         """The same on the bearings of beams that heard an echo, and of a wide run of beams that heard
-        none out to ``OPEN_RANGE_SHARE`` of the range; unknown on the others: how far the sonar saw water
+        none out to :func:`open_water_m`; unknown on the others: how far the sonar saw water
         (:meth:`in_free_space`, :meth:`violation_mask`)."""
 
     def violations(self, points: np.ndarray, margin_m: float,

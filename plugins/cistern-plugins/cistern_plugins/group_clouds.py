@@ -13,7 +13,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.alignment import (GRAZING_DEG, OPEN_RANGE_SHARE, FreeSpace, estimate_normals, rotate, scan_points,
+from cistern_plugins.alignment import (GRAZING_DEG, FreeSpace, estimate_normals, open_water_m, rotate, scan_points,
                                        transform)
 
 ORIENTATIONS = 8
@@ -48,7 +48,7 @@ class Cloud:
             p, n = wall_trace(p, facing_normals(p))
             points.append(transform(p, pose))
             normals.append(rotate(n, pose[2]) if len(n) else n)
-            free = FreeSpace(scan, open_range_m=OPEN_RANGE_SHARE * float(scan.max_range_m))
+            free = FreeSpace(scan, open_range_m=open_water_m(scan))
             self.frees.append((free, np.asarray(pose, dtype=np.float64)))
         self.points = np.vstack(points) if points else np.zeros((0, 2))
         self.normals = np.vstack(normals) if normals else np.zeros((0, 2))
