@@ -136,20 +136,51 @@ def test_a_silent_run_saw_water_no_farther_than_the_noise_lets_the_sonar_hear():
     assert not wide.in_free_space(point_at(225.0, 9.5), margin_m=0.1)[0]
 
 
-def test_a_group_sees_water_behind_a_silent_beam_no_farther_than_its_scan_could_hear():
-    """A group's water (:class:`~cistern_plugins.group_clouds.Cloud`): every beam that heard nothing saw
-    water out to 0.75 of the range — with the range set to 20 m, 15 m through the rock of a site 10 m
-    across — and no farther than where the receiver's noise began to hide walls."""
+def test_silent_beams_saw_water_to_the_farther_flank_of_a_narrow_run_and_far_in_a_wide_one():
+    """:func:`~cistern_plugins.alignment.silent_water`: a few silent beams between echoes at 2 m and 4 m
+    (a wall met at grazing incidence) saw water out to 4 m, not to 0.75 of the range; a run across the
+    turn's start is one run; a wide run saw water out to :func:`open_water_m`, and no farther than the
+    scan's detection range."""
+    import dataclasses
+
+    from cistern_plugins.alignment import silent_water
+
+    bearings = np.radians(np.arange(0.0, 360.0, 0.9))
+    ranges = np.full(len(bearings), 3.0)
+    ranges[[9, 13]] = 2.0, 4.0
+    ranges[10:13] = np.nan  # silent between 2 m and 4 m
+    ranges[[398, 1]] = 3.5, 2.5
+    ranges[[399, 0]] = np.nan  # silent across the turn's start
+    ranges[100:150] = np.nan  # 45° silent
+    scan = RangeScan(bearings_rad=bearings, ranges_m=ranges, yaw_rad=0.4, depth_m=1.0, max_range_m=6.0,
+                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    filled = silent_water(scan, math.radians(20.0)).ranges_m
+    assert np.all(filled[10:13] == 4.0)
+    assert np.all(filled[[399, 0]] == 3.5)
+    assert np.all(filled[100:150] == 4.5)
+    assert np.all(silent_water(dataclasses.replace(scan, detection_range_m=3.8), math.radians(20.0)).ranges_m[10:13]
+                  == 3.8)
+    assert np.array_equal(np.isfinite(filled), np.ones(len(bearings), dtype=bool))
+
+
+def test_a_group_sees_water_behind_silent_beams_no_farther_than_their_flanks_or_its_hearing():
+    """A group's water (:class:`~cistern_plugins.group_clouds.Cloud`), with the range set to 20 m: a few
+    silent beams (9°) between walls 3 m off claim water to 3 m, not 15 m through the rock; a wide silent
+    run claims it out to 0.75 of the range, and no farther than where the receiver's noise began to
+    hide walls."""
     import dataclasses
 
     from cistern_plugins.group_clouds import Cloud
 
-    few = dataclasses.replace(silent_scan((9.0, 0.0)), max_range_m=20.0)  # silent from 0° to 9°
     origin = np.zeros(3)
-    assert Cloud([few], [origin]).in_free_space(point_at(4.5, 12.0)).any()
-    heard_to_9m = dataclasses.replace(few, detection_range_m=9.0)
-    assert Cloud([heard_to_9m], [origin]).in_free_space(point_at(4.5, 8.0)).any()
-    assert not Cloud([heard_to_9m], [origin]).in_free_space(point_at(4.5, 12.0)).any()
+    few = dataclasses.replace(silent_scan((9.0, 0.0)), max_range_m=20.0)  # silent from 0° to 9°
+    assert Cloud([few], [origin]).in_free_space(point_at(4.5, 2.5)).any()
+    assert not Cloud([few], [origin]).in_free_space(point_at(4.5, 4.0)).any()
+    wide = dataclasses.replace(silent_scan((270.0, 180.0)), max_range_m=20.0)
+    assert Cloud([wide], [origin]).in_free_space(point_at(225.0, 12.0)).any()
+    heard_to_9m = dataclasses.replace(wide, detection_range_m=9.0)
+    assert Cloud([heard_to_9m], [origin]).in_free_space(point_at(225.0, 8.0)).any()
+    assert not Cloud([heard_to_9m], [origin]).in_free_space(point_at(225.0, 12.0)).any()
 
 
 def test_a_narrow_silent_run_or_a_scan_that_heard_nothing_says_nothing():

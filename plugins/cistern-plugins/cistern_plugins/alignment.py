@@ -20,6 +20,7 @@ chance; they rarely avoid each other's free space.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -353,23 +354,19 @@ class FreeSpace:
     a multipath ghost arriving after a direct echo nobody heard. Letting such a beam take its
     neighbours' water laid a right pair's walls 0.5–1 m "in water" (``benchmarks/RESULTS.md``,
     "2026-12-05 (session 4)"). What a neighbour's cone met may still hide what lies behind it on that
-    bearing, so visibility (:meth:`visible`) keeps the cone's bound there. With ``open_range_m`` a beam
-    with no echo saw water out to that range (a wall within the sonar's range would have answered), as
-    an occupancy grid reads it. With ``open_sector_rad`` only the beams of a run of silent beams that
-    wide or wider did (:func:`silent_runs`), out to :func:`open_water_m`: a station in the
+    bearing, so visibility (:meth:`visible`) keeps the cone's bound there (:func:`silent_water` gives
+    silent beams ranges of their own). With ``open_sector_rad`` the beams of a run of silent beams that
+    wide or wider saw water (:func:`silent_runs`), out to :func:`open_water_m`: a station in the
     corner of a chamber larger than its sonar's range hears the corner's two walls and nothing across
     the chamber, and that silence is what tells its corner from the corner of a smaller room, whose
     other walls would lie in it (:class:`ReferenceModel` judges every match so).
     """
 
-    def __init__(self, scan: RangeScan, *, cone: bool = True, open_range_m: float | None = None,
-                 open_sector_rad: float | None = None):
+    def __init__(self, scan: RangeScan, *, cone: bool = True, open_sector_rad: float | None = None):
         angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
         order = np.argsort(angles, kind="stable")
         self.angles = angles[order]
         ranges = scan.ranges_m[order]
-        if open_range_m is not None:  # a beam that heard no wall saw water out to open_range_m
-            ranges = np.where(np.isfinite(ranges), ranges, open_range_m)
         step = 2 * np.pi / max(len(angles), 1)
         self.tolerance_rad = 1.5 * step
         heard = np.isfinite(ranges)
@@ -378,7 +375,7 @@ class FreeSpace:
         """On each bearing, the nearest echo of the beams whose cones reach it: what may hide a point
         (:meth:`visible`)."""
         free = self.ranges
-        if open_sector_rad is not None and open_range_m is None:  # a wide silent run saw open water
+        if open_sector_rad is not None:  # a wide silent run saw open water
             wide = silent_runs(self.angles, heard, open_sector_rad)
             if wide.any():
                 heard = heard | wide
@@ -513,6 +510,32 @@ def silent_runs(angles: np.ndarray, heard: np.ndarray, min_width_rad: float) -> 
             width += gaps[run[-1]] if run else 0.0
             run.append(int(k))
     return out
+
+
+def silent_water(scan: RangeScan, open_sector_rad: float) -> RangeScan:
+    """``scan`` with every beam that heard nothing given the water it saw, as a range: a run of such
+    beams ``open_sector_rad`` wide or wider (:func:`silent_runs`) out to :func:`open_water_m`, a narrower
+    run out to the farther of the two echoes flanking it (a wall met at grazing incidence answers too
+    faintly, and lies about where its heard stretches on either side point), no farther than
+    :func:`open_water_m` either. A scan that heard nothing, or everything, is returned as it is."""
+    angles = np.mod(scan.bearings_rad + scan.yaw_rad, 2 * np.pi)
+    order = np.argsort(angles, kind="stable")
+    ranges = scan.ranges_m[order]
+    heard = np.isfinite(ranges)
+    if heard.all() or not heard.any():
+        return scan
+    n = len(ranges)
+    index = np.arange(n)
+    twice = np.concatenate([index, index + n])  # two turns, to look round the end cyclically
+    heard2 = np.tile(heard, 2)
+    before = np.maximum.accumulate(np.where(heard2, twice, -1))[n:] % n  # the last heard beam up to each
+    after = np.minimum.accumulate(np.where(heard2, twice, 2 * n)[::-1])[::-1][:n] % n  # the next from each
+    reach = open_water_m(scan)
+    flanks = np.minimum(np.maximum(ranges[before], ranges[after]), reach)
+    wide = silent_runs(angles[order], heard, open_sector_rad)
+    filled = np.empty(n)
+    filled[order] = np.where(heard, ranges, np.where(wide, reach, flanks))
+    return dataclasses.replace(scan, ranges_m=filled)
 
 
 def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:

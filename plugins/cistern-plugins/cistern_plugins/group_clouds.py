@@ -13,8 +13,8 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from cistern_archive.core.scan import RangeScan
-from cistern_plugins.alignment import (GRAZING_DEG, FreeSpace, estimate_normals, open_water_m, rotate, scan_points,
-                                       transform)
+from cistern_plugins.alignment import (GRAZING_DEG, OPEN_SECTOR_DEG, FreeSpace, estimate_normals, rotate, scan_points,
+                                       silent_water, transform)
 
 ORIENTATIONS = 8
 """Wall orientations are binned in eighths of a turn for the search, in sixteenths for the refinement
@@ -48,7 +48,7 @@ class Cloud:
             p, n = wall_trace(p, facing_normals(p))
             points.append(transform(p, pose))
             normals.append(rotate(n, pose[2]) if len(n) else n)
-            free = FreeSpace(scan, open_range_m=open_water_m(scan))
+            free = FreeSpace(silent_water(scan, math.radians(OPEN_SECTOR_DEG)))
             self.frees.append((free, np.asarray(pose, dtype=np.float64)))
         self.points = np.vstack(points) if points else np.zeros((0, 2))
         self.normals = np.vstack(normals) if normals else np.zeros((0, 2))

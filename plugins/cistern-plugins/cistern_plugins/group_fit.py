@@ -22,9 +22,11 @@ The score of placing group B by ``T`` in group A's frame is::
 
 over the occupied cells of each group (a wall seen by several stations counts once), with ``L_G`` the
 likelihood field of group G's walls of matching orientation, ``exp(-d^2 / 2 sigma^2)``, minus
-``free_penalty`` in G's free space and zero in space G never saw. A beam that heard no wall saw water
-(out to 0.75 of its range, no farther than the receiver's noise let it hear:
-:func:`~cistern_plugins.alignment.open_water_m`), and no wall stands where a vehicle floated. The compasses
+``free_penalty`` in G's free space and zero in space G never saw. Beams that heard no wall saw water
+(:func:`~cistern_plugins.alignment.silent_water`): a run of them 20° wide or wider out to 0.75 of the
+range, no farther than the receiver's noise let it hear, a narrower one out to the farther of the
+echoes on either side (a wall met at grazing incidence answers too faintly); and no wall stands where a
+vehicle floated. The compasses
 add a prior on the turn between the two frames (:class:`CompassPrior`). For every yaw of the window
 both sums are cross-correlations over all translations at once (FFT), as in the correlative matching
 of Olson (ICRA 2009) with the second, reverse sum added; the best pose is then refined by a direct
