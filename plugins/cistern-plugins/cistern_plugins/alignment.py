@@ -20,9 +20,8 @@ chance; they rarely avoid each other's free space.
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -535,7 +534,7 @@ def silent_water(scan: RangeScan, open_sector_rad: float) -> RangeScan:
     wide = silent_runs(angles[order], heard, open_sector_rad)
     filled = np.empty(n)
     filled[order] = np.where(heard, ranges, np.where(wide, reach, flanks))
-    return dataclasses.replace(scan, ranges_m=filled)
+    return replace(scan, ranges_m=filled)
 
 
 def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:
