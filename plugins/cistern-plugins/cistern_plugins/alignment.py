@@ -497,17 +497,13 @@ def silent_runs(angles: np.ndarray, heard: np.ndarray, min_width_rad: float) -> 
         return out
     gaps = np.mod(np.diff(angles, append=angles[0] + 2 * np.pi), 2 * np.pi)  # gaps[k]: beam k to beam k + 1
     apart = gaps > RUN_GAP_STEPS * float(np.median(gaps))
-    start = int(np.flatnonzero(heard)[-1]) + 1  # read cyclically from just after a heard beam
-    run: list[int] = []
-    width = 0.0
-    for k in (start + np.arange(n + 1)) % n:
-        if heard[k] or (run and apart[run[-1]]):
-            if run and width >= min_width_rad:
-                out[run] = True
-            run, width = [], 0.0
-        if not heard[k]:
-            width += gaps[run[-1]] if run else 0.0
-            run.append(int(k))
+    turn = (int(np.flatnonzero(heard)[-1]) + 1 + np.arange(n)) % n  # from just after a heard beam, once round
+    silent, split, gap = ~heard[turn], apart[turn], gaps[turn]
+    begins = silent & np.concatenate([[True], ~silent[:-1] | split[:-1]])
+    run = np.cumsum(begins) - 1
+    inner = silent & np.append(silent[1:] & ~split[:-1], False)  # the next beam is silent and of the same run
+    width = np.bincount(run[silent], weights=np.where(inner, gap, 0.0)[silent])
+    out[turn[silent]] = width[run[silent]] >= min_width_rad
     return out
 
 
