@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -93,6 +94,12 @@ def test_inliers_are_counted_as_points_at_the_calibration_step(seed):
     assert coarse.line_rms_m <= coarse.rms_m
 
 
+def sonar_scan(bearings_deg: np.ndarray, ranges_m: np.ndarray, *, yaw_rad: float = 0.0) -> RangeScan:
+    """A scan of a 6 m head with a 3° beam from the origin: ``ranges_m`` (nan: no echo) on ``bearings_deg``."""
+    return RangeScan(bearings_rad=np.radians(bearings_deg), ranges_m=ranges_m, yaw_rad=yaw_rad, depth_m=1.0,
+                     max_range_m=6.0, bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+
+
 def silent_scan(heard_deg: tuple[float, float], *, step_deg: float = 0.9, range_m: float = 3.0) -> RangeScan:
     """A full turn hearing a wall ``range_m`` off on the bearings from ``heard_deg[0]`` up to
     ``heard_deg[1]`` (degrees, wrapping through 0) and nothing on the others."""
@@ -100,8 +107,7 @@ def silent_scan(heard_deg: tuple[float, float], *, step_deg: float = 0.9, range_
     lo, hi = heard_deg
     heard = (np.mod(bearings - lo, 360.0) < np.mod(hi - lo, 360.0))
     ranges = np.where(heard, range_m, np.nan)
-    return RangeScan(bearings_rad=np.radians(bearings), ranges_m=ranges, yaw_rad=0.0, depth_m=1.0, max_range_m=6.0,
-                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    return sonar_scan(bearings, ranges)
 
 
 def test_a_wide_run_of_silent_beams_saw_open_water_out_to_a_share_of_the_range():
@@ -124,8 +130,6 @@ def test_a_wide_run_of_silent_beams_saw_open_water_out_to_a_share_of_the_range()
 def test_a_silent_run_saw_water_no_farther_than_the_noise_lets_the_sonar_hear():
     """The same quarter silent with the range set to 20 m: beyond the scan's detection range (9 m) the
     receiver's noise hid any wall, so the silence there claims no water, whatever share of the range."""
-    import dataclasses
-
     from cistern_plugins.alignment import open_water_m
 
     scan = dataclasses.replace(silent_scan((270.0, 180.0)), max_range_m=20.0, detection_range_m=9.0)
@@ -141,19 +145,16 @@ def test_silent_beams_saw_water_to_the_farther_flank_of_a_narrow_run_and_far_in_
     (a wall met at grazing incidence) saw water out to 4 m, not to 0.75 of the range; a run across the
     turn's start is one run; a wide run saw water out to :func:`open_water_m`, and no farther than the
     scan's detection range."""
-    import dataclasses
-
     from cistern_plugins.alignment import silent_water
 
-    bearings = np.radians(np.arange(0.0, 360.0, 0.9))
+    bearings = np.arange(0.0, 360.0, 0.9)
     ranges = np.full(len(bearings), 3.0)
     ranges[[9, 13]] = 2.0, 4.0
     ranges[10:13] = np.nan  # silent between 2 m and 4 m
     ranges[[398, 1]] = 3.5, 2.5
     ranges[[399, 0]] = np.nan  # silent across the turn's start
     ranges[100:150] = np.nan  # 45° silent
-    scan = RangeScan(bearings_rad=bearings, ranges_m=ranges, yaw_rad=0.4, depth_m=1.0, max_range_m=6.0,
-                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    scan = sonar_scan(bearings, ranges, yaw_rad=0.4)
     filled = silent_water(scan, math.radians(20.0)).ranges_m
     assert np.all(filled[10:13] == 4.0)
     assert np.all(filled[[399, 0]] == 3.5)
@@ -168,8 +169,6 @@ def test_a_group_sees_water_behind_silent_beams_no_farther_than_their_flanks_or_
     silent beams (9°) between walls 3 m off claim water to 3 m, not 15 m through the rock; a wide silent
     run claims it out to 0.75 of the range, and no farther than where the receiver's noise began to
     hide walls."""
-    import dataclasses
-
     from cistern_plugins.group_clouds import Cloud
 
     origin = np.zeros(3)
@@ -195,12 +194,10 @@ def test_a_narrow_silent_run_or_a_scan_that_heard_nothing_says_nothing():
     assert wrapped.in_free_space(point_at(5.0, 2.0), margin_m=0.1)[0]
     sector = np.arange(100.0, 260.0, 0.9)  # a sector scan silent for 9° at either end: two runs, not one
     ends = np.where((sector < 109.0) | (sector > 251.0), np.nan, 3.0)
-    scan = RangeScan(bearings_rad=np.radians(sector), ranges_m=ends, yaw_rad=0.0, depth_m=1.0, max_range_m=6.0,
-                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    scan = sonar_scan(sector, ends)
     assert not FreeSpace(scan, open_sector_rad=math.radians(10.0)).in_free_space(point_at(255.0, 2.0), 0.1)[0]
-    bearings = np.radians(np.arange(0.0, 360.0, 0.9))
-    deaf = RangeScan(bearings_rad=bearings, ranges_m=np.full(len(bearings), np.nan), yaw_rad=0.0, depth_m=1.0,
-                     max_range_m=6.0, bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+    bearings = np.arange(0.0, 360.0, 0.9)
+    deaf = sonar_scan(bearings, np.full(len(bearings), np.nan))
     assert not FreeSpace(deaf, open_sector_rad=math.radians(20.0)).in_free_space(point_at(90.0, 2.0), 0.1)[0]
 
 
