@@ -4,7 +4,7 @@ Pairs come from :mod:`cistern_archive.simulation.pairs`: random cistern rooms (w
 galleries (with niches), 200-beam 360° sweeps, range 2.5–8 m, compass error up to 20°. With
 ``--sonar rays`` (default) the ranges are ideal rays with range noise 2/5/10 cm, 5 % multipath
 outliers and 5 % drop-outs; with ``--sonar simulator`` the scans come from the project's physical sonar
-simulator and the paper's beam segmentation.
+simulator and the records' default beam segmentation (``shadow``).
 They are drawn into buckets by overlap (20–30, 30–50, 50–70, 70–90 %) and initial offset (the true
 translation a matcher must recover from a zero start: < 1 m or 1–2 m), plus ``no_overlap`` pairs from
 two different sites. Every matcher sees exactly the same pairs.
@@ -529,7 +529,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-overlap-pairs", type=int, default=50, help="pairs from two different sites")
     ap.add_argument("--sonar", choices=["rays", "simulator"], default="rays",
                     help="rays: ideal rays + controlled noise levels; simulator: physical sonar simulator + "
-                         "the paper's segmentation")
+                         "the records' default segmentation (shadow)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the pairs reported on")
     ap.add_argument("--tune-seed", type=int, default=1000,
                     help="seed of the pairs Karto's response threshold is calibrated on (not --seed)")
