@@ -2,7 +2,7 @@
 with truth and on real recordings without it.
 
 Simulated sites (the physical simulator, :mod:`cistern_archive.simulation.simulator`: reverberation through the
-35° vertical lobe, multipath ghosts, speckle, spikes, ring-down and the vehicle's own echo), three families
+35° vertical lobe, multipath ghosts, speckle, spikes, ring-down and the vehicle's own echo), five families
 and the bell-shaped cistern apart:
 
 * ``demo``: every spec of ``catalog/specs`` re-simulated with other seeds; the bell-shaped cistern is
@@ -18,6 +18,10 @@ and the bell-shaped cistern apart:
   distributed intensities, against the simulator's default of three looks), as a single-look head
   without averaging hears them; the near field's speckle then peaks above the shadow rule's first two
   tests on many beams.
+* ``weak_tvg``: the ``chambers`` sites again through a head whose time-varying gain rises by 20 log R
+  instead of the simulator's 35 log R (a common setting, and a gain law other simulators and heads
+  may use): the echoes fall off with range by 15 dB a decade more, so distant walls stand 50-80 counts
+  above the converter's floor.
 
 Per beam the segmented range is compared with the true range along the beam's axis (``inf`` when the wall
 is beyond the range setting): ``hit`` within ``TOL_BINS`` (2) bins; ``false`` walls are echoes more than
@@ -25,7 +29,8 @@ that from the wall: ``before`` it (reverberation, near field, spikes in the wate
 the smear of a far wall) or on a beam with no wall in range; ``missed``: no echo although the wall is in
 range. ``score`` = hit - false - missed (fractions of all beams): a beam states either a wall at its
 range or, with no echo, free water up to the range setting (:class:`~cistern_archive.core.scan.RangeScan`),
-so a missed wall (free water through a wall) is as wrong as a false one.
+so a missed wall (free water through a wall) is as wrong as a false one. Four rules (``VARIANTS``): the
+three methods at their defaults and ``faint``, the shadow rule with ``faint_walls`` on.
 
 Seed sets: ``--set tune`` (random seeds 1..N, the demo specs with their catalog seed plus 3000) chose the
 constants of ``shadow`` (``--tune`` runs the grid ``TUNE_GRID`` over them and prints it, best first);
@@ -93,7 +98,11 @@ from cistern_archive.sonar.fan import polar_to_cartesian  # noqa: E402
 from cistern_archive.simulation.simulator import simulate_site  # noqa: E402
 from cistern_archive.simulation.spec import SimulationSpec, load_spec  # noqa: E402
 
-METHODS = seg.METHODS
+VARIANTS = {**{method: {"method": method} for method in seg.METHODS},
+            "faint": {"method": "shadow", "faint_walls": True}}
+"""The rules compared: each method with its defaults, and ``faint``, the shadow rule with ``faint_walls``
+(:mod:`cistern_archive.sonar.segmentation`, step 3)."""
+METHODS = tuple(VARIANTS)
 
 
 # --- simulated sites -------------------------------------------------------------------------------
@@ -167,7 +176,8 @@ def random_chambers(seed: int, shallow: bool) -> SimulationSpec:
 def simulated_sets(which: str, n_sites: int) -> dict[str, list[tuple[SimulationSpec, list]]]:
     """The simulated scans of one seed set, by family: ``{family: [(spec, scans), ...]}``."""
     base = SEED_BASE[which]
-    families: dict[str, list] = {"demo": [], "bell": [], "chambers": [], "shallow": [], "speckle": []}
+    families: dict[str, list] = {"demo": [], "bell": [], "chambers": [], "shallow": [], "speckle": [],
+                                 "weak_tvg": []}
     demo_seeds = [1000, 2000] if which == "report" else [3000]
     for spec_path in sorted((ROOT / "catalog" / "specs").glob("*.yaml")):
         spec0 = load_spec(spec_path)
@@ -181,7 +191,19 @@ def simulated_sets(which: str, n_sites: int) -> dict[str, list[tuple[SimulationS
             families[family].append((spec, simulate_site(spec).scans))
         spec = one_look(random_chambers(base + k, False))
         families["speckle"].append((spec, simulate_site(spec).scans))
+        spec = weak_tvg(random_chambers(base + k, False))
+        families["weak_tvg"].append((spec, simulate_site(spec).scans))
     return families
+
+
+WEAK_TVG_EXPONENT = 20.0
+"""The ``weak_tvg`` family's time-varying gain, ``n log10 r`` (the simulator's default is 35)."""
+
+
+def weak_tvg(spec: SimulationSpec) -> SimulationSpec:
+    """The same site heard through a time-varying gain of ``WEAK_TVG_EXPONENT`` log R."""
+    return spec.model_copy(update={"id": spec.id + "-weak-tvg",
+                                   "sonar": spec.sonar.model_copy(update={"tvg_exponent": WEAK_TVG_EXPONENT})})
 
 
 def one_look(spec: SimulationSpec) -> SimulationSpec:
@@ -226,7 +248,7 @@ def summarise(outcomes: list[dict[str, np.ndarray]]) -> dict:
 
 def site_outcomes(spec: SimulationSpec, scans: list, method: str) -> list[dict[str, np.ndarray]]:
     """Beam outcomes of every scan of one site under ``method`` (the site's threshold and blanking)."""
-    settings = spec.segmentation.model_copy(update={"method": method})
+    settings = spec.segmentation.model_copy(update=VARIANTS[method])
     return [beam_outcomes(sim, settings) for sim in scans]
 
 
@@ -317,7 +339,7 @@ def _repeat_agreement(a, b, tol: float, beyond_m: float = 0.0) -> tuple[int, int
 
 def real_metrics(sweeps: list, method: str) -> dict:
     """The honest no-truth measures of one method on the sweeps of one recording."""
-    settings = Segmentation(method=method, min_range_m=REAL_MIN_RANGE_M)
+    settings = Segmentation(**VARIANTS[method], min_range_m=REAL_MIN_RANGE_M)
     ranges = [seg.segment(s, settings) for s in sweeps]
     tol = max(TOL_BINS * sweeps[0].bin_size_m, 0.05)
     counts = np.zeros((2, 2), dtype=int)  # (all echoes, beyond the edge) x (agreeing, compared)
@@ -389,7 +411,7 @@ def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.n
             ax.scatter(-truth[ok] * np.sin(scan.bearings_rad[ok]), truth[ok] * np.cos(scan.bearings_rad[ok]),
                        s=1, c="#39d353", label="true wall")
         if k:
-            settings = Segmentation(method=method, min_range_m=min_range_m)
+            settings = Segmentation(**VARIANTS[method], min_range_m=min_range_m)
             rs = seg.segment(scan, settings)
             ok = rs.valid
             ax.scatter(-rs.ranges_m[ok] * np.sin(rs.bearings_rad[ok]), rs.ranges_m[ok] * np.cos(rs.bearings_rad[ok]),
@@ -401,7 +423,7 @@ def write_figure(target: Path, scan, title: str, min_range_m: float, truth: np.n
 
 
 def simulated_figures(families: dict[str, list], figures: Path) -> None:
-    for family in ("chambers", "shallow", "speckle", "demo"):
+    for family in ("chambers", "shallow", "speckle", "weak_tvg", "demo"):
         spec, scans = families[family][0]
         sim = scans[0]
         seen = sim.truth_ranges_m[np.isfinite(sim.truth_ranges_m)]

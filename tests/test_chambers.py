@@ -129,6 +129,14 @@ def test_default_settings_draw_the_same_sites_as_none():
     assert [c.spec for c in again] == [c.spec for c in CISTERNS]
 
 
+def test_settings_reach_the_sonar_and_the_segmentation_of_every_site():
+    settings = GeneratorSettings(sonar={"tvg_exponent": 20.0}, segmentation={"faint_walls": True})
+    for plain, cistern in zip(CISTERNS[:6], random_cisterns(6, seed=7, settings=settings)):
+        assert cistern.spec.sonar.tvg_exponent == 20.0 and cistern.spec.segmentation.faint_walls
+        assert cistern.spec.segmentation.min_range_m == plain.spec.segmentation.min_range_m
+        assert not plain.spec.segmentation.faint_walls and plain.spec.sonar.tvg_exponent == 35.0
+
+
 def test_settings_give_longer_tunnels_surveyed_along_their_length():
     settings = GeneratorSettings(tunnel_length_m=(2.0, 4.0), tunnel_width_m=(0.7, 1.0), tunnel_station_spacing_m=1.5)
     tunnels = 0

@@ -402,3 +402,51 @@ def test_a_detection_needs_both_neighbouring_beams_near_its_range():
     bearings = np.linspace(0, 2 * math.pi, 6, endpoint=False)[[3, 4, 5, 0, 1, 2]]  # a turn begun mid-way
     kept = segmentation.beside_both_neighbours(detections[[3, 4, 5, 0, 1, 2]], bearings, 2)
     assert_array_equal(np.argwhere(kept[[3, 4, 5, 0, 1, 2]]), [[1, 11]])
+
+
+# --- faint walls: a time-varying gain that rises more slowly than the spreading loss ------------------
+
+def _room_through_weak_tvg(seed: int, tvg_exponent: float):
+    """A room 9 m x 6 m seen from near one corner with the range at 10 m: through a 20 log R gain its far
+    walls come back 50-80 counts above the converter's floor, too faint to cast a 65-count shadow."""
+    return simulate_scan([np.array([[0, 0], [9.0, 0], [9.0, 6.0], [0, 6.0]])], TruePose("t", 1.5, 1.2, 0.3, 1.5),
+                         SonarSpec(range_m=10.0, bins=250, tvg_exponent=tvg_exponent), EffectsSpec(),
+                         np.random.default_rng(seed), water_depth_m=3.0)
+
+
+def _hit_and_false(sim, settings: Segmentation) -> tuple[float, float]:
+    """Share of beams on the wall (within two bins), share with an echo elsewhere."""
+    ranges = segment(sim.scan, settings).ranges_m
+    on_wall = np.abs(ranges - sim.truth_ranges_m) <= 2 * sim.scan.bin_size_m
+    return float(np.mean(on_wall)), float(np.mean(np.isfinite(ranges) & ~on_wall))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_faint_walls_beside_their_neighbours_count_through_a_weak_gain(seed):
+    plain = Segmentation(method="shadow", min_range_m=0.4)
+    faint = plain.model_copy(update={"faint_walls": True})
+    weak = _room_through_weak_tvg(seed, 20.0)
+    usual = _room_through_weak_tvg(seed, 35.0)
+    with_faint = _hit_and_false(weak, faint), _hit_and_false(usual, faint)
+    without = _hit_and_false(weak, plain), _hit_and_false(usual, plain)
+    assert with_faint[0][0] >= without[0][0] + 0.02  # more of the far walls through the weak gain
+    assert with_faint[0][1] <= without[0][1] + 0.02
+    assert abs(with_faint[1][0] - without[1][0]) <= 0.01  # through the usual gain hardly anything changes
+    assert with_faint[1][1] <= without[1][1] + 0.01
+
+
+def test_a_faint_echo_counts_only_beside_detections_on_both_neighbouring_beams():
+    bearings = np.radians(np.arange(400) * 0.9)
+    rows = np.zeros((400, 150))
+    rows[:, 60:63] = 200.0  # a wall every beam hears strongly at 2.4 m (255 once normalised)
+    opening = np.arange(96, 105)
+    rows[opening, 60:63] = 0.0  # an opening nine beams wide ...
+    rows[opening, 100:103] = 45.0  # ... with a faint wall behind it: 57 normalised, over dark water
+    rows[[300], 60:63] = 0.0
+    rows[[300], 100:103] = 45.0  # the same faint echo on a single beam: a speckle peak, not a wall
+    scan = Scan(bearings_rad=bearings, intensities=rows.astype(np.uint8), full_scale=255, bin_size_m=BIN)
+    ranges = segment(scan, SHADOW.model_copy(update={"min_range_m": 0.4, "faint_walls": True})).ranges_m
+    assert_allclose(ranges[opening[1:-1]], 101 * BIN + BIN / 2, atol=BIN)  # its edge beams have one witness
+    assert np.isnan(ranges[300])
+    assert_allclose(ranges[0], 61 * BIN + BIN / 2, atol=BIN)
+    assert np.isnan(segment(scan, SHADOW.model_copy(update={"min_range_m": 0.4})).ranges_m[opening]).all()

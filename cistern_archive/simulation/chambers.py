@@ -95,6 +95,8 @@ class GeneratorSettings(BaseModel):
                                     description="other settings of the sonar (SimulationSpec's sonar), e.g. beam_width_deg")
     effects: dict[str, float] = Field(default_factory=dict,
                                       description="other effects (SimulationSpec's effects), e.g. speckle_looks")
+    segmentation: dict[str, float | bool | str] = Field(
+        default_factory=dict, description="other settings of the records' segmentation, e.g. faint_walls")
     station_depth_jitter_m: float = Field(0.05, ge=0, description="each station's depth is the site's survey "
                                           "depth ± this (kept 0.3 m off the surface and the floor)")
     return_to_start: bool = Field(False, description="the vehicle comes back to the first chamber, where it "
@@ -536,7 +538,7 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
                     "multipath_fraction": _round(rng.uniform(*settings.multipath_fraction)),
                     **({} if settings.spike_rate is None else {"spike_rate": settings.spike_rate}),
                     **settings.effects},
-        "segmentation": {"min_range_m": 0.4},
+        "segmentation": {"min_range_m": 0.4, **settings.segmentation},
         "stations": [
             {"name": s.name, "x_m": _round(p[0]), "y_m": _round(p[1]), "yaw_deg": _round(math.degrees(yaw), 2),
              "depth_m": _round(station_depth(depth, water_depth, settings.station_depth_jitter_m,

@@ -55,7 +55,17 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        the median ignores a ghost in that window. Where less than half the window is left before the last
        bin, the shadow cannot be seen and nothing is detected: the last
        ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range setting (0.38 m) hold no walls, where the
-       receiver noise, amplified most by the time-varying gain, would otherwise pass the test;
+       receiver noise, amplified most by the time-varying gain, would otherwise pass the test.
+       A **faint** wall cannot cast a shadow deeper than it stands above the converter's floor: a head
+       whose time-varying gain rises more slowly than the spreading loss (20 log R against 40 log R)
+       returns distant walls 50-80 counts high, over water that is already dark. With ``faint_walls`` (off
+       by default), on a full turn such an echo counts when the water behind it is darker by
+       ``SHADOW_SHARE`` of its height and both neighbouring beams hold a detection within
+       ``SHADOW_ECHO_M`` of its range (a wall answers in the overlapping cones of neighbouring beams, a
+       speckle peak in the water does not; as in step 5). Through a 20 log R gain this finds a fifth of
+       the walls the rule missed; through the simulator's 35 log R it adds few echoes, but those few
+       narrowed fits of groups across openings that lay 0.37 m off until they passed for sure
+       (``benchmarks/RESULTS.md``, "2026-12-06 (session 13)"), so it is not the default;
     4. **in the near field, a wall stands out from what every beam holds at its range**: on a full turn
        of the head (:func:`full_turn`), from the blanking range on as long as the across-beam median of
        the smoothed image falls off with range (by ``COMMON_DECAY`` over the shadow's window:
@@ -121,6 +131,7 @@ FIRST_RATIO = 0.7
 SHADOW_TRAIL_M = 0.6
 SHADOW_GUARD_M = 0.08
 SHADOW_MARGIN = 65.0
+SHADOW_SHARE = 0.7
 SHADOW_LEAD_MARGIN = 20.0
 SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
@@ -137,6 +148,7 @@ class SegmentationSettings(Protocol):
     method: str
     threshold: float
     min_range_m: float
+    faint_walls: bool
 
 
 def _blank_near(scan: Scan, min_range_m: float) -> np.ndarray:
@@ -300,14 +312,17 @@ def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, gu
     return out
 
 
-def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple[np.ndarray, np.ndarray, float]:
+def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False
+                      ) -> tuple[np.ndarray, np.ndarray, float]:
     """Detection mask, normalised smoothed image and detection range of the ``shadow`` method (steps 1-5).
 
     Returns
     -------
     detections : ndarray of bool, shape (A, B)
         Bins beyond ``min_range_m`` above ``threshold``, ``SHADOW_LEAD_MARGIN`` above their leading
-        training mean, ``SHADOW_MARGIN`` above the median of the water behind them and, on a full turn,
+        training mean, ``SHADOW_MARGIN`` above the median of the water behind them (with ``faint_walls``, a
+        faint echo on a full turn: ``SHADOW_SHARE`` of its height, beside detections on both neighbouring
+        beams) and, on a full turn,
         ``COMMON_MARGIN`` above the level every beam holds at their range in the near field, and beside
         detections on both neighbouring beams where the receiver noise passes ``threshold`` by itself.
     smooth : ndarray of float64, shape (A, B)
@@ -335,14 +350,19 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float) -> tuple
     beams, bins = np.nonzero(candidates)
     _, _, guard, trail = windows
     behind = _trailing_median(smooth, beams, bins, guard, trail)
-    shadowed = smooth[beams, bins] - behind >= SHADOW_MARGIN
+    depth = smooth[beams, bins] - behind
     detections = np.zeros_like(candidates)
-    detections[beams, bins] = shadowed
+    detections[beams, bins] = depth >= SHADOW_MARGIN
     reach = float("inf")
+    echo_bins = _bins(SHADOW_ECHO_M, bin_m)
+    if turn and faint_walls:
+        faint = np.zeros_like(candidates)
+        faint[beams, bins] = (depth < SHADOW_MARGIN) & (depth >= SHADOW_SHARE * smooth[beams, bins])
+        detections |= faint & beside_both_neighbours(detections | faint, scan.bearings_rad, echo_bins)
     if turn:
         noisy = noise_limited(common, threshold, far)
         if noisy.any():
-            confirmed = beside_both_neighbours(detections, scan.bearings_rad, _bins(SHADOW_ECHO_M, bin_m))
+            confirmed = beside_both_neighbours(detections, scan.bearings_rad, echo_bins)
             detections[:, noisy] &= confirmed[:, noisy]
             reach = float(scan.bin_centres_m[int(np.argmax(noisy))])
     return detections, np.where(far[None, :], smooth, 0.0), reach
@@ -483,7 +503,8 @@ def _peaks_and_reach(scan: Scan, settings: SegmentationSettings) -> tuple[np.nda
     if settings.method == "cfar":
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
         return _first_strong_peaks(detections, smooth), float("inf")
-    detections, smooth, reach = shadow_detections(scan, settings.threshold, settings.min_range_m)
+    detections, smooth, reach = shadow_detections(scan, settings.threshold, settings.min_range_m,
+                                                  settings.faint_walls)
     return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m)), reach
 
 
@@ -495,8 +516,8 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
     scan : Scan
         Raw intensities.
     settings : Segmentation
-        ``method`` ('paper' | 'cfar' | 'shadow'), ``threshold`` (on the 0..255 normalised scale) and
-        ``min_range_m``.
+        ``method`` ('paper' | 'cfar' | 'shadow'), ``threshold`` (on the 0..255 normalised scale),
+        ``min_range_m`` and ``faint_walls`` (shadow only).
 
     Returns
     -------
