@@ -64,7 +64,7 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        ``SHADOW_ECHO_M`` of its range (a wall answers in the overlapping cones of neighbouring beams, a
        speckle peak in the water does not; as in step 5). Through a 20 log R gain this finds a fifth of
        the walls the rule missed; through the simulator's 35 log R it adds few echoes, but those few
-       narrowed fits of groups across openings that lay 0.37 m off until they passed for sure
+       narrowed fits of groups across openings that lay 0.37-0.38 m off until they passed for sure
        (``benchmarks/RESULTS.md``, "2026-12-06 (session 13)"), so it is not the default;
     4. **in the near field, a wall stands out from what every beam holds at its range**: on a full turn
        of the head (:func:`full_turn`), from the blanking range on as long as the across-beam median of
@@ -322,9 +322,9 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_wa
         Bins beyond ``min_range_m`` above ``threshold``, ``SHADOW_LEAD_MARGIN`` above their leading
         training mean, ``SHADOW_MARGIN`` above the median of the water behind them (with ``faint_walls``, a
         faint echo on a full turn: ``SHADOW_SHARE`` of its height, beside detections on both neighbouring
-        beams) and, on a full turn,
-        ``COMMON_MARGIN`` above the level every beam holds at their range in the near field, and beside
-        detections on both neighbouring beams where the receiver noise passes ``threshold`` by itself.
+        beams) and, on a full turn, ``COMMON_MARGIN`` above the level every beam holds at their range in
+        the near field, and beside detections on both neighbouring beams where the receiver noise passes
+        ``threshold`` by itself.
     smooth : ndarray of float64, shape (A, B)
         The image smoothed over 0.12 m along each beam, normalised to 0..255 by its maximum beyond
         ``min_range_m``.
