@@ -30,7 +30,7 @@ the smear of a far wall) or on a beam with no wall in range; ``missed``: no echo
 range. ``score`` = hit - false - missed (fractions of all beams): a beam states either a wall at its
 range or, with no echo, free water up to the range setting (:class:`~cistern_archive.core.scan.RangeScan`),
 so a missed wall (free water through a wall) is as wrong as a false one. Four rules (``VARIANTS``): the
-three methods at their defaults and ``faint``, the shadow rule with ``faint_walls`` on.
+three methods with ``faint_walls`` off and ``faint``, the shadow rule with it on.
 
 Seed sets: ``--set tune`` (random seeds 1..N, the demo specs with their catalog seed plus 3000) chose the
 constants of ``shadow`` (``--tune`` runs the grid ``TUNE_GRID`` over them and prints it, best first);
@@ -98,10 +98,10 @@ from cistern_archive.sonar.fan import polar_to_cartesian  # noqa: E402
 from cistern_archive.simulation.simulator import simulate_site  # noqa: E402
 from cistern_archive.simulation.spec import SimulationSpec, load_spec  # noqa: E402
 
-VARIANTS = {**{method: {"method": method} for method in seg.METHODS},
-            "faint": {"method": "shadow", "faint_walls": True}}
-"""The rules compared: each method with its defaults, and ``faint``, the shadow rule with ``faint_walls``
-(:mod:`cistern_archive.sonar.segmentation`, step 3)."""
+VARIANTS = {**{method: {"method": method, "faint_walls": "off"} for method in seg.METHODS},
+            "faint": {"method": "shadow", "faint_walls": "on"}}
+"""The rules compared, scan by scan: each method with ``faint_walls`` off, and ``faint``, the shadow rule
+with it on (:mod:`cistern_archive.sonar.segmentation`, step 3; a site's ``auto`` picks one of the two)."""
 METHODS = tuple(VARIANTS)
 
 

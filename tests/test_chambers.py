@@ -130,11 +130,11 @@ def test_default_settings_draw_the_same_sites_as_none():
 
 
 def test_settings_reach_the_sonar_and_the_segmentation_of_every_site():
-    settings = GeneratorSettings(sonar={"tvg_exponent": 20.0}, segmentation={"faint_walls": True})
+    settings = GeneratorSettings(sonar={"tvg_exponent": 20.0}, segmentation={"faint_walls": "on"})
     for plain, cistern in zip(CISTERNS[:6], random_cisterns(6, seed=7, settings=settings)):
-        assert cistern.spec.sonar.tvg_exponent == 20.0 and cistern.spec.segmentation.faint_walls
+        assert cistern.spec.sonar.tvg_exponent == 20.0 and cistern.spec.segmentation.faint_walls == "on"
         assert cistern.spec.segmentation.min_range_m == plain.spec.segmentation.min_range_m
-        assert not plain.spec.segmentation.faint_walls and plain.spec.sonar.tvg_exponent == 35.0
+        assert plain.spec.segmentation.faint_walls == "auto" and plain.spec.sonar.tvg_exponent == 35.0
 
 
 def test_settings_give_longer_tunnels_surveyed_along_their_length():

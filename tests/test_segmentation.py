@@ -423,8 +423,8 @@ def _hit_and_false(sim, settings: Segmentation) -> tuple[float, float]:
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_faint_walls_beside_their_neighbours_count_through_a_weak_gain(seed):
-    plain = Segmentation(method="shadow", min_range_m=0.4)
-    faint = plain.model_copy(update={"faint_walls": True})
+    plain = Segmentation(method="shadow", min_range_m=0.4, faint_walls="off")
+    faint = plain.model_copy(update={"faint_walls": "on"})
     weak = _room_through_weak_tvg(seed, 20.0)
     usual = _room_through_weak_tvg(seed, 35.0)
     with_faint = _hit_and_false(weak, faint), _hit_and_false(usual, faint)
@@ -445,8 +445,46 @@ def test_a_faint_echo_counts_only_beside_detections_on_both_neighbouring_beams()
     rows[[300], 60:63] = 0.0
     rows[[300], 100:103] = 45.0  # the same faint echo on a single beam: a speckle peak, not a wall
     scan = Scan(bearings_rad=bearings, intensities=rows.astype(np.uint8), full_scale=255, bin_size_m=BIN)
-    ranges = segment(scan, SHADOW.model_copy(update={"min_range_m": 0.4, "faint_walls": True})).ranges_m
+    ranges = segment(scan, SHADOW.model_copy(update={"min_range_m": 0.4, "faint_walls": "on"})).ranges_m
     assert_allclose(ranges[opening[1:-1]], 101 * BIN + BIN / 2, atol=BIN)  # its edge beams have one witness
     assert np.isnan(ranges[300])
     assert_allclose(ranges[0], 61 * BIN + BIN / 2, atol=BIN)
-    assert np.isnan(segment(scan, SHADOW.model_copy(update={"min_range_m": 0.4})).ranges_m[opening]).all()
+    for alone in ("off", "auto"):  # a scan segmented on its own takes auto as off
+        blanked = {"min_range_m": 0.4, "faint_walls": alone}
+        assert np.isnan(segment(scan, SHADOW.model_copy(update=blanked)).ranges_m[opening]).all()
+
+
+def _site_through(tvg_exponent: float) -> list:
+    """Three stations of the weak-gain room: a site's worth of echoes at every range."""
+    room = [np.array([[0, 0], [9.0, 0], [9.0, 6.0], [0, 6.0]])]
+    return [simulate_scan(room, TruePose(f"s{k}", x, y, 0.3 * k, 1.5),
+                          SonarSpec(range_m=10.0, bins=250, tvg_exponent=tvg_exponent), EffectsSpec(),
+                          np.random.default_rng(k), water_depth_m=3.0).scan
+            for k, (x, y) in enumerate([(1.5, 1.2), (4.5, 3.0), (7.5, 4.8)])]
+
+
+def test_a_site_whose_echoes_fall_off_like_a_weak_gain_takes_faint_walls():
+    weak, usual = _site_through(20.0), _site_through(35.0)
+    falloff = {name: segmentation.echo_falloff(scans, 50.0, 0.4) for name, scans in (("weak", weak), ("usual", usual))}
+    assert falloff["weak"] < segmentation.FAINT_FALLOFF < falloff["usual"], falloff
+    auto = Segmentation(method="shadow", min_range_m=0.4)
+    assert auto.faint_walls == "auto"
+    assert segmentation.site_segmentation(weak, auto).faint_walls == "on"
+    assert segmentation.site_segmentation(usual, auto).faint_walls == "off"
+    assert segmentation.site_segmentation(weak, auto.model_copy(update={"method": "cfar"})).faint_walls == "off"
+    chosen = auto.model_copy(update={"faint_walls": "off"})
+    assert segmentation.site_segmentation(weak, chosen) is chosen  # a choice made in the record stands
+    silent = weak[0].replace(intensities=np.zeros_like(weak[0].intensities))
+    assert math.isnan(segmentation.echo_falloff([silent], 50.0, 0.4))  # no echoes: nothing to decide on
+    assert segmentation.site_segmentation([silent], auto).faint_walls == "off"
+
+
+def test_echo_incidence_reads_the_wall_a_beam_meets():
+    # A straight wall 2 m east of the head: a beam at bearing b meets it at incidence b - 90°.
+    bearings = np.radians(np.arange(30.0, 150.0, 0.9))
+    ranges = 2.0 / np.sin(bearings)
+    cos_i = segmentation.echo_incidence(ranges, bearings)
+    inner = slice(5, -5)
+    assert_allclose(cos_i[inner], np.abs(np.sin(bearings[inner])), atol=1e-6)
+    ranges[10] = np.nan
+    assert np.isnan(segmentation.echo_incidence(ranges, bearings)[10])

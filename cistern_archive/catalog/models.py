@@ -109,10 +109,11 @@ class Segmentation(Strict):
     method: Literal["paper", "cfar", "shadow"] = "shadow"
     threshold: float = Field(default=50.0, ge=0, le=255)
     min_range_m: float = Field(default=0.0, ge=0)
-    faint_walls: bool = Field(default=False, description=(
+    faint_walls: Literal["auto", "on", "off"] = Field(default="auto", description=(
         "shadow method: also take faint wall echoes that cast a shadow as deep as most of their height and "
-        "that both neighbouring beams confirm; for heads whose time-varying gain rises more slowly than the "
-        "spreading loss (e.g. 20 log R), whose distant walls come back faint"))
+        "that both neighbouring beams confirm, for heads whose time-varying gain rises more slowly than the "
+        "spreading loss (e.g. 20 log R), whose distant walls come back faint; 'auto': on where a site's wall "
+        "echoes fall off with range as through such a gain (decided per site when it is built)"))
 
 
 class ScanRef(Strict):

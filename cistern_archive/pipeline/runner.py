@@ -122,7 +122,9 @@ def segment_scan(scan: Scan, settings: Segmentation) -> RangeScan:
 
 def range_scans(loaded: LoadedRecord) -> list[RangeScan]:
     """The record's scans, read and segmented as :func:`build_site` does (its ``load`` and ``segment``)."""
-    return [segment_scan(load_scan(loaded, ref), loaded.record.segmentation) for ref in loaded.record.scans]
+    raw = [load_scan(loaded, ref) for ref in loaded.record.scans]
+    settings = site_segmentation(raw, loaded.record.segmentation)
+    return [segment_scan(scan, settings) for scan in raw]
 
 
 def pair_rng(seed: int, i: int, j: int) -> np.random.Generator:
@@ -237,11 +239,22 @@ def load_step(run: SiteRun) -> None:
         run.build.raw_scans.append(run_stage("load", ref.file, lambda ref=ref: load_scan(run.loaded, ref)))
 
 
+def site_segmentation(scans: Sequence[Scan], settings: Segmentation) -> Segmentation:
+    """The record's segmentation with what it leaves to the site decided from its scans
+    (:func:`cistern_archive.sonar.segmentation.site_segmentation`: ``faint_walls: auto``)."""
+    from cistern_archive.sonar.segmentation import site_segmentation as decide  # scipy: deferred
+
+    return decide(scans, settings)
+
+
 def segment_step(run: SiteRun) -> None:
-    """One range per beam of every scan, with the record's segmentation."""
+    """One range per beam of every scan, with the record's segmentation as decided for this site (the
+    build's record, written as ``record.json``, says what was decided)."""
+    settings = run_stage("segment", f"{len(run.build.raw_scans)} scans",
+                         lambda: site_segmentation(run.build.raw_scans, run.record.segmentation))
+    run.build.record = run.build.record.model_copy(update={"segmentation": settings})
     for ref, scan in zip(run.record.scans, run.build.raw_scans):
-        run.build.range_scans.append(
-            run_stage("segment", ref.file, lambda s=scan: segment_scan(s, run.record.segmentation)))
+        run.build.range_scans.append(run_stage("segment", ref.file, lambda s=scan: segment_scan(s, settings)))
 
 
 def match_step(run: SiteRun) -> None:

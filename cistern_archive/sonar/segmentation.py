@@ -58,14 +58,16 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        receiver noise, amplified most by the time-varying gain, would otherwise pass the test.
        A **faint** wall cannot cast a shadow deeper than it stands above the converter's floor: a head
        whose time-varying gain rises more slowly than the spreading loss (20 log R against 40 log R)
-       returns distant walls 50-80 counts high, over water that is already dark. With ``faint_walls`` (off
-       by default), on a full turn such an echo counts when the water behind it is darker by
-       ``SHADOW_SHARE`` of its height and both neighbouring beams hold a detection within
-       ``SHADOW_ECHO_M`` of its range (a wall answers in the overlapping cones of neighbouring beams, a
-       speckle peak in the water does not; as in step 5). Through a 20 log R gain this finds a fifth of
-       the walls the rule missed; through the simulator's 35 log R it adds few echoes, but those few
-       narrowed fits of groups across openings that lay 0.37-0.38 m off until they passed for sure
-       (``benchmarks/RESULTS.md``, "2026-12-06 (session 13)"), so it is not the default;
+       returns distant walls 50-80 counts high, over water that is already dark. With ``faint_walls``
+       ``on``, on a full turn such an echo counts when the water behind it is darker by ``SHADOW_SHARE``
+       of its height and both neighbouring beams hold a detection within ``SHADOW_ECHO_M`` of its range
+       (a wall answers in the overlapping cones of neighbouring beams, a speckle peak in the water does
+       not; as in step 5). Through a 20 log R gain this finds a fifth of the walls the rule missed;
+       through the simulator's 35 log R it adds few echoes, but those few narrowed fits of groups across
+       openings that lay 0.37-0.38 m off until they passed for sure (``benchmarks/RESULTS.md``,
+       "2026-12-06 (session 13)"). So ``auto`` (the default) turns it on only for a site whose wall
+       echoes fall off with range as through a weak gain (:func:`site_segmentation`,
+       :func:`echo_falloff`); a scan segmented on its own takes ``auto`` as ``off``;
     4. **in the near field, a wall stands out from what every beam holds at its range**: on a full turn
        of the head (:func:`full_turn`), from the blanking range on as long as the across-beam median of
        the smoothed image falls off with range (by ``COMMON_DECAY`` over the shadow's window:
@@ -115,10 +117,11 @@ were chosen on simulated scans whose seeds are not those of the bundled catalog,
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, optimize
 
 from cistern_archive.catalog.models import Segmentation
 from cistern_archive.core.scan import RangeScan, Scan
@@ -132,6 +135,16 @@ SHADOW_TRAIL_M = 0.6
 SHADOW_GUARD_M = 0.08
 SHADOW_MARGIN = 65.0
 SHADOW_SHARE = 0.7
+FAINT_FALLOFF = -105.0
+"""Normalised counts per decade of range: a site whose wall echoes fall off faster than this, their
+incidence allowed for (:func:`echo_falloff`), takes faint walls under ``faint_walls: auto``. At the
+simulator's 35 log R gain 24 sites fell off by 53-90 counts a decade (12 random cisterns, the six demo
+sites; the bell-shaped cistern 90), through 20 log R by 117-191 (12 random cisterns, the demo sites
+148-190): about 27 log R (``benchmarks/RESULTS.md``, "2026-12-06 (session 13)")."""
+INCIDENCE_BEAMS = 3
+"""Echoes of this many beams either side, within ``INCIDENCE_REACH_M``, give a wall's direction at an echo."""
+INCIDENCE_REACH_M = 0.4
+"""How near an echo another must lie to count towards its wall's direction."""
 SHADOW_LEAD_MARGIN = 20.0
 SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
@@ -148,7 +161,7 @@ class SegmentationSettings(Protocol):
     method: str
     threshold: float
     min_range_m: float
-    faint_walls: bool
+    faint_walls: str
 
 
 def _blank_near(scan: Scan, min_range_m: float) -> np.ndarray:
@@ -504,7 +517,7 @@ def _peaks_and_reach(scan: Scan, settings: SegmentationSettings) -> tuple[np.nda
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
         return _first_strong_peaks(detections, smooth), float("inf")
     detections, smooth, reach = shadow_detections(scan, settings.threshold, settings.min_range_m,
-                                                  settings.faint_walls)
+                                                  settings.faint_walls == "on")
     return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m)), reach
 
 
@@ -517,7 +530,8 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
         Raw intensities.
     settings : Segmentation
         ``method`` ('paper' | 'cfar' | 'shadow'), ``threshold`` (on the 0..255 normalised scale),
-        ``min_range_m`` and ``faint_walls`` (shadow only).
+        ``min_range_m`` and ``faint_walls`` (shadow only; ``auto`` is ``off`` here: a site decides it,
+        :func:`site_segmentation`).
 
     Returns
     -------
@@ -543,6 +557,69 @@ def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
         time_s=scan.timestamp,
         detection_range_m=reach,
     )
+
+
+def echo_incidence(ranges_m: np.ndarray, bearings_rad: np.ndarray) -> np.ndarray:
+    """``cos`` of the angle between each beam and the normal of the wall its echo lies on, the wall's
+    direction taken from the echoes of ``INCIDENCE_BEAMS`` beams either side within ``INCIDENCE_REACH_M``
+    (their principal axis); ``nan`` without an echo or with fewer than four such echoes."""
+    order = np.argsort(np.mod(bearings_rad, 2 * np.pi), kind="stable")
+    r, b = ranges_m[order], bearings_rad[order]
+    x, y = r * np.sin(b), r * np.cos(b)
+    shifts = np.arange(-INCIDENCE_BEAMS, INCIDENCE_BEAMS + 1)
+    nx = np.stack([np.roll(x, -k) for k in shifts], axis=1)
+    ny = np.stack([np.roll(y, -k) for k in shifts], axis=1)
+    near = np.isfinite(nx) & (np.hypot(nx - x[:, None], ny - y[:, None]) < INCIDENCE_REACH_M)
+    count = near.sum(axis=1)
+    mx = np.where(near, nx, 0.0).sum(axis=1) / np.maximum(count, 1)
+    my = np.where(near, ny, 0.0).sum(axis=1) / np.maximum(count, 1)
+    dx, dy = np.where(near, nx - mx[:, None], 0.0), np.where(near, ny - my[:, None], 0.0)
+    sxx, syy, sxy = (dx * dx).sum(axis=1), (dy * dy).sum(axis=1), (dx * dy).sum(axis=1)
+    angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # the wall's direction (principal axis)
+    cos_incidence = np.abs(-np.sin(angle) * np.sin(b) + np.cos(angle) * np.cos(b))  # normal · beam
+    out = np.full(r.shape, np.nan)
+    out[order] = np.where(np.isfinite(r) & (count >= 4), cos_incidence, np.nan)
+    return out
+
+
+def echo_falloff(scans: Sequence[Scan], threshold: float, min_range_m: float) -> float:
+    """How fast the wall echoes of ``scans`` fall off with range, their incidence allowed for: ``b`` of
+    ``h = a + b log10 r + c log10 cos i`` fitted to the ``shadow`` rule's echo peaks ``h`` (normalised
+    counts; log-compressed, so counts are decibels) at ranges ``r`` and incidences ``i``
+    (:func:`echo_incidence`), pooled over the scans, by least squares with a soft-L1 loss (ghosts and
+    corners). A wall's echo weakens as it is met more obliquely, and far walls are met more obliquely
+    than near ones, so range alone would read a long gallery as a weak gain. Counts per decade; ``nan``
+    with fewer than 20 such echoes or no spread in range."""
+    ranges, heights, incidences = [], [], []
+    for scan in scans:
+        if scan.n_beams == 0 or scan.n_bins == 0:
+            continue
+        detections, smooth, _ = shadow_detections(scan, threshold, min_range_m)
+        peaks = _echo_peaks(detections, smooth, threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m))
+        has = peaks >= 0
+        r = np.where(has, scan.bin_centres_m[np.clip(peaks, 0, None)], np.nan)
+        cos_i = echo_incidence(r, scan.bearings_rad)
+        keep = np.isfinite(cos_i) & (cos_i > 0.05) & (r > 0)
+        ranges.append(r[keep])
+        heights.append(smooth[np.flatnonzero(keep), peaks[keep]])
+        incidences.append(cos_i[keep])
+    if not ranges:
+        return float("nan")
+    r, h, c = np.concatenate(ranges), np.concatenate(heights), np.concatenate(incidences)
+    if r.size < 20 or np.ptp(np.log10(r)) <= 0:
+        return float("nan")
+    design = np.column_stack([np.ones_like(r), np.log10(r), np.log10(c)])
+    fit = optimize.least_squares(lambda p: design @ p - h, np.zeros(3), loss="soft_l1", f_scale=20.0)
+    return float(fit.x[1])
+
+
+def site_segmentation(scans: Sequence[Scan], settings: Segmentation) -> Segmentation:
+    """``settings`` for the scans of one site, ``faint_walls: auto`` decided: ``on`` where their wall echoes
+    fall off faster than ``FAINT_FALLOFF`` (:func:`echo_falloff`), ``off`` elsewhere and for other methods."""
+    if settings.faint_walls != "auto":
+        return settings
+    falloff = echo_falloff(scans, settings.threshold, settings.min_range_m) if settings.method == "shadow" else np.nan
+    return settings.model_copy(update={"faint_walls": "on" if falloff < FAINT_FALLOFF else "off"})
 
 
 def segment_intensities(scan: Scan, settings: SegmentationSettings | None = None) -> np.ndarray:
