@@ -406,10 +406,11 @@ def test_a_detection_needs_both_neighbouring_beams_near_its_range():
 
 # --- faint walls: a time-varying gain that rises more slowly than the spreading loss ------------------
 
-def _room_through_weak_tvg(seed: int, tvg_exponent: float):
-    """A room 9 m x 6 m seen from near one corner with the range at 10 m: through a 20 log R gain its far
-    walls come back 50-80 counts above the converter's floor, too faint to cast a 65-count shadow."""
-    return simulate_scan([np.array([[0, 0], [9.0, 0], [9.0, 6.0], [0, 6.0]])], TruePose("t", 1.5, 1.2, 0.3, 1.5),
+def _room_through_weak_tvg(seed: int, tvg_exponent: float, pose: TruePose = TruePose("t", 1.5, 1.2, 0.3, 1.5)):
+    """A room 9 m x 6 m seen from ``pose`` (by default near one corner) with the range at 10 m: through a
+    20 log R gain its far walls come back 50-80 counts above the converter's floor, too faint to cast a
+    65-count shadow."""
+    return simulate_scan([np.array([[0, 0], [9.0, 0], [9.0, 6.0], [0, 6.0]])], pose,
                          SonarSpec(range_m=10.0, bins=250, tvg_exponent=tvg_exponent), EffectsSpec(),
                          np.random.default_rng(seed), water_depth_m=3.0)
 
@@ -456,10 +457,7 @@ def test_a_faint_echo_counts_only_beside_detections_on_both_neighbouring_beams()
 
 def _site_through(tvg_exponent: float) -> list:
     """Three stations of the weak-gain room: a site's worth of echoes at every range."""
-    room = [np.array([[0, 0], [9.0, 0], [9.0, 6.0], [0, 6.0]])]
-    return [simulate_scan(room, TruePose(f"s{k}", x, y, 0.3 * k, 1.5),
-                          SonarSpec(range_m=10.0, bins=250, tvg_exponent=tvg_exponent), EffectsSpec(),
-                          np.random.default_rng(k), water_depth_m=3.0).scan
+    return [_room_through_weak_tvg(k, tvg_exponent, TruePose(f"s{k}", x, y, 0.3 * k, 1.5)).scan
             for k, (x, y) in enumerate([(1.5, 1.2), (4.5, 3.0), (7.5, 4.8)])]
 
 

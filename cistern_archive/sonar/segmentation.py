@@ -368,11 +368,11 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_wa
     detections[beams, bins] = depth >= SHADOW_MARGIN
     reach = float("inf")
     echo_bins = _bins(SHADOW_ECHO_M, bin_m)
-    if turn and faint_walls:
-        faint = np.zeros_like(candidates)
-        faint[beams, bins] = (depth < SHADOW_MARGIN) & (depth >= SHADOW_SHARE * smooth[beams, bins])
-        detections |= faint & beside_both_neighbours(detections | faint, scan.bearings_rad, echo_bins)
     if turn:
+        if faint_walls:
+            faint = np.zeros_like(candidates)
+            faint[beams, bins] = (depth < SHADOW_MARGIN) & (depth >= SHADOW_SHARE * smooth[beams, bins])
+            detections |= faint & beside_both_neighbours(detections | faint, scan.bearings_rad, echo_bins)
         noisy = noise_limited(common, threshold, far)
         if noisy.any():
             confirmed = beside_both_neighbours(detections, scan.bearings_rad, echo_bins)
