@@ -80,16 +80,17 @@ class SplitRecorder:
 
 class JoinRecorder:
     """Records the pairs of every join ``WallCheck`` judges (:meth:`~cistern_plugins.site_groups.WallCheck.assess_join`:
-    their qualities and relative poses) and passes them on unchanged."""
+    their qualities and relative poses, with the join's lone scan, :func:`~cistern_plugins.site_groups.lone_scan`)
+    and passes them on unchanged."""
 
     def __init__(self) -> None:
-        self.calls: list[list[site_groups.JoinPair]] = []
+        self.calls: list[tuple[list[site_groups.JoinPair], int | None]] = []
         original = site_groups.WallCheck.assess_join
         recorder = self
 
         def assess_join(check, graph, i, j, z):
             pairs = original(check, graph, i, j, z)
-            recorder.calls.append(pairs)
+            recorder.calls.append((pairs, site_groups.lone_scan(graph, i, j)))
             return pairs
 
         site_groups.WallCheck.assess_join = assess_join
@@ -153,12 +154,12 @@ def one_site(job: tuple[int, int]) -> dict:
             q = model.assess_pair(scans[m.j], np.array([m.dx_m, m.dy_m, m.dyaw_rad]), limits)
             matches.append((truth.pair_error(m), q.violation_run_m))
         joins = []
-        for pairs in recorder.calls:
+        for pairs, lone in recorder.calls:
             if pairs:
                 errors = [truth.displacement_error(p.a, p.b, p.rel.x(), p.rel.y()) for p in pairs]
                 runs = sorted((p.quality.violation_run_m for p in pairs), reverse=True)
                 over = sum(r > limits.max_violation_run_m for r in runs)
-                disjoint = [run for run, _, _ in site_groups.corroborated_runs(pairs, 0.0)]  # longest first
+                disjoint = [run for run, _, _ in site_groups.corroborated_runs(pairs, 0.0, lone)]  # longest first
                 corroborated = sum(run > site_groups.CORROBORATED_RUN_M for run in disjoint)
                 joins.append((max(errors), runs[0], *back_to_back(pairs), over, runs[1] if len(runs) > 1 else 0.0,
                               corroborated, disjoint[1] if len(disjoint) > 1 else 0.0, *two_way(pairs, limits)))

@@ -265,3 +265,26 @@ def test_a_return_to_the_first_chamber_does_not_make_the_last_one_its_neighbour(
     monkeypatch.setattr(site_groups, "joined_in_sequence", lambda graph, k: True)
     graph = consistent_edges(scans, matches, SiteGraphParams())
     assert graph.group[5] == graph.group[0]
+
+
+def test_a_station_inside_the_tunnel_joins_the_chambers_on_either_side():
+    """The two chambers with a station inside the tunnel visited between them, hearing its two walls and
+    little beyond (3 m range), and no match across: the tunnel station fits every passage of its width,
+    and the chambers were visited a station apart, so no fit of two groups joins them; fitted to each
+    chamber, the tunnel station joins the two (:func:`~cistern_plugins.site_groups.join_through_passage`),
+    every scan where it lies, both joins reported with how well they place their groups."""
+    rng = np.random.default_rng(9)
+    positions = WEST + [TUNNEL] + EAST
+    scans = [_scan(p, rng, f"s{k + 1}") for k, p in enumerate(positions)]
+    inside = polygon_scan([SITE], TUNNEL, 0.0, rng=rng, n_beams=400, max_range_m=3.0)
+    scans[3] = inside.__class__(**{**inside.__dict__, "station": "s4"})
+    assert wall_spread(Cloud([scans[3]], [np.zeros(3)])) < GroupFitSettings().min_spread
+    matches = [_match(i, j, positions) for i in range(7) for j in range(7)
+               if i != j and 3 not in (i, j) and (i < 3) == (j < 3)]
+    poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert poses.placed.all()
+    error = (poses.xy_m - poses.xy_m[0]) - (np.asarray(positions) - positions[0])
+    assert np.abs(error).max() < 0.1
+    assert sorted(poses.group_links) == [(2, 3), (4, 3)] and all(0.03 < s < 0.15 for s in poses.group_link_sigma_m)
+    apart = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_passages=False))
+    assert apart.placed.tolist() == [True] * 3 + [False] * 4

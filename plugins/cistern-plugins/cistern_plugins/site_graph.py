@@ -84,7 +84,12 @@ builds a graph over the whole site instead, in three steps.
    (:func:`~cistern_plugins.site_groups.joined_in_sequence`): a return to the first chamber is recorded
    right after the last chamber's station, not near it. The clearest accepted fit joins first, until
    none is left. Its edge carries the covariance of the fit's score, wide along a tunnel that both
-   groups see end to end.
+   groups see end to end. When no fit is left, a passage seen from inside between two groups — the
+   stations of a tunnel, visited one after another between a station of each (``group_passages``,
+   :func:`~cistern_plugins.site_groups.join_through_passage`) — is fitted to each of the two: the
+   passage alone fits every passage of its width, but only one place in each chamber beside it, so it
+   must fit both clearly and to within 0.15 m along any direction, and the far group, placed by the two
+   fits, must pass the wall check. The rounds of fits then go on.
 
    Once every join is made, each group is judged again whole (:mod:`cistern_plugins.settled_groups`): a
    join judged when one scan of a look-alike chamber joined a group of three could not weigh the few
@@ -164,6 +169,9 @@ class SiteGraphParams(GraphParams):
                                        "at least this confidence (step 2 of the module docstring)")
     group_fit: bool = Field(True, description="join the groups no match could join by fitting them as wholes "
                             "(step 2 of the module docstring, cistern_plugins.group_fit)")
+    group_passages: bool = Field(True, description="join the groups on either side of a passage seen from inside "
+                                 "(a tunnel's stations, whose walls all run one way) by fitting the passage to each "
+                                 "(cistern_plugins.site_groups.join_through_passage)")
     group_min_score: float = Field(30.0, ge=0, description="a group fit joins only with at least this score "
                                    "(cells of 0.1 m of agreeing wall, both ways)")
     group_ambiguity_ratio: float = Field(0.8, gt=0, le=1, description="a group fit joins only when no place "

@@ -201,19 +201,28 @@ range lay at most 0.29 m, and 99.9 % of them at most 0.22 m (``benchmarks/RESULT
 "2026-12-05 (session 4)")."""
 
 
-def corroborated_runs(pairs: Sequence[JoinPair], min_run_m: float) -> list[tuple[float, int, int]]:
+def corroborated_runs(pairs: Sequence[JoinPair], min_run_m: float, lone: int | None = None
+                      ) -> list[tuple[float, int, int]]:
     """The pairs of a join that lay more than ``min_run_m`` of wall in a row across the other's water,
     longest first, no two sharing a scan (a scan with one odd beam conflicts with every scan of the other
-    group; independent views of the same conflict do not share one): ``(run, a, b)`` each."""
+    group; independent views of the same conflict do not share one): ``(run, a, b)`` each. A join of a
+    ``lone`` scan (a group of one) has no second scan on its side: there the views are the other
+    group's scans, each of which sees the lone scan's walls from its own place, and only they must differ."""
     chosen: list[tuple[float, int, int]] = []
     used: set[int] = set()
     for run, a, b in sorted(((p.quality.violation_run_m, p.a, p.b) for p in pairs), reverse=True):
         if run <= min_run_m:
             break
-        if a not in used and b not in used:
+        if not ({a, b} - {lone}) & used:
             chosen.append((run, a, b))
-            used |= {a, b}
+            used |= {a, b} - {lone}
     return chosen
+
+
+def lone_scan(graph: Graph, i: int, j: int) -> int | None:
+    """The scan of the join of ``j``'s group into ``i``'s that is a group by itself (``j`` first), or
+    ``None``: :func:`corroborated_runs` counts the views of a lone scan's walls by the other group's scans."""
+    return next((k for k in (j, i) if len(graph.members(graph.group[k])) == 1), None)
 
 
 def sharing_pairs(pairs: Sequence[JoinPair], limits: ConvergenceThresholds) -> list[JoinPair]:
@@ -308,7 +317,7 @@ class WallCheck:
         if run > self.limits.max_violation_run_m:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
                     f"({self.label(a)} – {self.label(b)}; at most {self.limits.max_violation_run_m:.2f} m)")
-        corroborated = corroborated_runs(pairs, CORROBORATED_RUN_M)
+        corroborated = corroborated_runs(pairs, CORROBORATED_RUN_M, lone_scan(graph, i, j))
         if len(corroborated) >= CORROBORATED_PAIRS:
             seen = ", ".join(f"{self.label(a)} – {self.label(b)} {run:.2f} m" for run, a, b in corroborated)
             return (f"joining its groups would lay wall across the water other scans saw, from {len(corroborated)} "
@@ -470,8 +479,9 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
     each round, every pair of groups at one depth level that the survey visited at most ``group_max_gap``
     places apart (:func:`survey_gap`, over the stations :func:`joined_in_sequence`) is fitted and the
     clearest accepted fit that passes the wall check merges its two groups; until no fit joins two
-    groups. Returns the edges added (one per join); the reasons of the fits refused are kept in
-    ``graph.unjoined`` for every scan outside the largest group."""
+    groups; when none does, a passage between two groups joins them (:func:`join_through_passage`), and
+    the rounds go on. Returns the edges added (one per join, two for a passage); the reasons of the fits
+    refused are kept in ``graph.unjoined`` for every scan outside the largest group."""
     digest = scans_digest(scans)
     added: list[Edge] = []
     while True:
@@ -517,7 +527,79 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
             graph.fitted.append((edge.i, edge.j))
             break
         else:
-            return added
+            bridged = join_through_passage(graph, scans, walls, p, digest) if p.group_passages else []
+            if not bridged:
+                return added
+            added += bridged
+
+
+PASSAGE_FIT_SIGMA_M = 0.15
+"""The largest standard deviation (m) a passage's fit to a group may leave along any direction: a tunnel
+whose ends its stations do not hear fits anywhere along itself (the fit's covariance then says so, up to
+``MAX_SIGMA``), and a group placed through it would be placed by that much."""
+
+
+def loose_along(fit: GroupFit) -> bool:
+    """Whether a passage's fit leaves its place along some direction looser than :data:`PASSAGE_FIT_SIGMA_M`."""
+    return float(np.sqrt(np.linalg.eigvalsh(fit.covariance[:2, :2]).max())) > PASSAGE_FIT_SIGMA_M
+
+
+def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams,
+                         digest: str) -> list[Edge]:
+    """Join the two groups on either side of a passage seen from inside through the passage itself: a
+    group of stations visited one after the other whose walls all run one way (a tunnel's), between a
+    station of one group and the next station of another, is fitted as a whole to each
+    (:func:`passage_edges`), and the two fits place the far group in the near one's frame, which the
+    wall check judges as any join (:func:`merge_checked`). Returns the two edges of the first join made
+    (none when no passage joins two groups)."""
+    for g in sorted(set(graph.group)):
+        edges = passage_edges(graph, scans, walls, p, digest, g)
+        if edges and merge_checked(graph, walls, edges):
+            graph.fitted += [(e.i, e.j) for e in edges]
+            for k in graph.members(graph.group[edges[0].j]):
+                graph.unjoined.pop(k, None)
+            return edges
+    return []
+
+
+def passage_edges(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams, digest: str,
+                  g: int) -> list[Edge]:
+    """The edges of group ``g``'s fits (:func:`group_fit`) to the groups of the stations visited just
+    before and just after it, when ``g`` is a passage seen from inside (its walls run one way) that fits
+    each clearly (:func:`~cistern_plugins.group_fit.accept`, but for its own spread) and to within
+    :data:`PASSAGE_FIT_SIGMA_M`; empty otherwise. On its own a passage fits every passage of its width;
+    beside each chamber only at one place."""
+    members = graph.members(g)
+    lo, hi = min(members), max(members)
+    if hi - lo + 1 != len(members) or lo == 0 or hi == len(scans) - 1:
+        return []
+    sides = (graph.group[lo - 1], graph.group[hi + 1])
+    if sides[0] == sides[1]:
+        return []
+    s = p.group_settings()
+    edges = []
+    for side in sides:
+        a, b = level_members(graph, walls.levels, side, lo), level_members(graph, walls.levels, g, lo)
+        if not a or not b:
+            return []
+        fit, spreads = group_fit(scans, graph, a, b, p, digest)
+        if spreads[1] >= s.min_spread or accept(fit, s, (spreads[0], 1.0)) or loose_along(fit):
+            return []
+        edges.append(group_edge(graph, a, b, fit))
+    return edges
+
+
+def merge_checked(graph: Graph, walls: WallCheck, edges: Sequence[Edge]) -> bool:
+    """Merge the groups of each edge in turn, each judged by the wall check as the ones before left the
+    groups; on a refusal the graph is left as it was and ``False`` returned."""
+    saved = (list(graph.group), list(graph.pose))
+    for edge in edges:
+        z = gtsam.Pose2(*edge.z)
+        if walls.conflict(graph, edge.i, edge.j, z):
+            graph.group[:], graph.pose[:] = saved
+            return False
+        merge_groups(graph, edge.i, edge.j, z)
+    return True
 
 
 def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[MatchResult], labels: Sequence[str]) -> str:
