@@ -91,16 +91,25 @@ def match(i, j, scans_xy, *, dx=0.0):
 
 
 @pytest.mark.parametrize("look_alike", [True, False])
-def test_localize_leaves_the_smaller_part_unplaced_with_the_reason(look_alike):
+def test_localize_leaves_the_smaller_part_unplaced_with_the_reason(look_alike, monkeypatch):
     """Through the localizer: the survey's chain a1–a2–b1–b2–b3, every link matched both ways, the link
     a2–b1 laying the second room onto the first. Alike but for the niches, the two stations of the first
-    room are left unplaced with the reason; alike in every wall, the five stations stay placed."""
+    room are left unplaced with the reason; alike in every wall, the five stations stay placed. The
+    join of b1 alone onto the first room is refused at once, a1 and a2 each seeing its niche cross their
+    water; with a lone scan's views counted as one (as before), the whole rooms are judged once joined
+    and the smaller part is cut off."""
+    from cistern_plugins import site_groups
+
     scans = two_rooms(niche_room([1.5, 3.2] if look_alike else [0.5, 2.6]))
     matches = [m for i in range(4) for m in (match(i, i + 1, XY), match(i + 1, i, XY))]
     poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
-    if look_alike:
-        assert poses.placed.tolist() == [False, False, True, True, True]
-        assert poses.reasons[0].startswith("no consistent chain of matches to the reference station b1: the stations "
-                                           "a1 … a2, visited one after another")
-    else:
+    if not look_alike:
         assert poses.placed.all()
+        return
+    assert poses.placed.tolist() == [False, False, True, True, True]
+    assert "as one chamber's opening laid onto a look-alike's solid wall" in poses.reasons[0]
+    monkeypatch.setattr(site_groups, "lone_scan", lambda *args: None)
+    poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert poses.placed.tolist() == [False, False, True, True, True]
+    assert poses.reasons[0].startswith("no consistent chain of matches to the reference station b1: the stations "
+                                       "a1 … a2, visited one after another")
