@@ -5,10 +5,10 @@ last station back in the first chamber — rests on the one kind of join a look-
 Where every station is placed, the localizer judged that join against the scans of every station (the
 site graph refuses a lone scan laid into a look-alike chamber when two of that chamber's stations see
 its walls cross their water); where some are unplaced, they could not, and the site's reasons say so
-(:func:`cistern_archive.pipeline.status.loop_only_caveat`). On the random cisterns of five tuning runs (``benchmarks/RESULTS.md``, "2026-12-05 (session 8)") four placed stations of
-``partial`` sites were held so: two misplaced (a return station 7.6 m off in a look-alike chamber, a
-station 1.75 m off) and two right (a tunnel station held by the next chamber's, a station whose
-predecessor was unplaced).
+(:func:`cistern_archive.pipeline.status.loop_only_caveat`). On the random cisterns of five tuning runs
+(``benchmarks/RESULTS.md``, "2026-12-05 (session 8)") four placed stations of ``partial`` sites were held
+so: two misplaced (a return station 7.6 m off in a look-alike chamber, a station 1.75 m off) and two
+right (a tunnel station held by the next chamber's, a station whose predecessor was unplaced).
 """
 
 from __future__ import annotations
