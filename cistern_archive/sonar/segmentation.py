@@ -516,9 +516,16 @@ def _peaks_and_reach(scan: Scan, settings: SegmentationSettings) -> tuple[np.nda
     if settings.method == "cfar":
         detections, smooth = cfar_detections(scan, settings.threshold, settings.min_range_m)
         return _first_strong_peaks(detections, smooth), float("inf")
-    detections, smooth, reach = shadow_detections(scan, settings.threshold, settings.min_range_m,
-                                                  settings.faint_walls == "on")
-    return _echo_peaks(detections, smooth, settings.threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m)), reach
+    peaks, _, reach = shadow_peaks(scan, settings.threshold, settings.min_range_m, settings.faint_walls == "on")
+    return peaks, reach
+
+
+def shadow_peaks(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``shadow`` method's echo peak bin per beam (-1 for none), with its smoothed image and detection
+    range (:func:`shadow_detections`)."""
+    detections, smooth, reach = shadow_detections(scan, threshold, min_range_m, faint_walls)
+    return _echo_peaks(detections, smooth, threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m)), smooth, reach
 
 
 def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
@@ -594,8 +601,7 @@ def echo_falloff(scans: Sequence[Scan], threshold: float, min_range_m: float) ->
     for scan in scans:
         if scan.n_beams == 0 or scan.n_bins == 0:
             continue
-        detections, smooth, _ = shadow_detections(scan, threshold, min_range_m)
-        peaks = _echo_peaks(detections, smooth, threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m))
+        peaks, smooth, _ = shadow_peaks(scan, threshold, min_range_m)
         has = peaks >= 0
         r = np.where(has, scan.bin_centres_m[np.clip(peaks, 0, None)], np.nan)
         cos_i = echo_incidence(r, scan.bearings_rad)

@@ -521,16 +521,22 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                     graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group, but {why}")
                 continue
             merge_groups(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
-            for k in graph.members(graph.group[edge.i]):
-                graph.unjoined.pop(k, None)
+            note_fitted(graph, [edge])
             added.append(edge)
-            graph.fitted.append((edge.i, edge.j))
             break
         else:
             bridged = join_through_passage(graph, scans, walls, p, digest) if p.group_passages else []
             if not bridged:
                 return added
             added += bridged
+
+
+def note_fitted(graph: Graph, edges: Sequence[Edge]) -> None:
+    """Record joins just made by fits: their edges' two scans in ``graph.fitted``, and no reason left why
+    the scans of the joined group stand apart."""
+    graph.fitted += [(e.i, e.j) for e in edges]
+    for k in graph.members(graph.group[edges[0].i]):
+        graph.unjoined.pop(k, None)
 
 
 PASSAGE_FIT_SIGMA_M = 0.15
@@ -555,9 +561,7 @@ def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCh
     for g in sorted(set(graph.group)):
         edges = passage_edges(graph, scans, walls, p, digest, g)
         if edges and merge_checked(graph, walls, edges):
-            graph.fitted += [(e.i, e.j) for e in edges]
-            for k in graph.members(graph.group[edges[0].j]):
-                graph.unjoined.pop(k, None)
+            note_fitted(graph, edges)
             return edges
     return []
 
