@@ -288,3 +288,48 @@ def test_a_station_inside_the_tunnel_joins_the_chambers_on_either_side():
     assert sorted(poses.group_links) == [(2, 3), (4, 3)] and all(0.03 < s < 0.15 for s in poses.group_link_sigma_m)
     apart = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_passages=False))
     assert apart.placed.tolist() == [True] * 3 + [False] * 4
+
+
+# Two chambers of one shape, 4 m x 3 m, side by side: the west one's mouth in its east wall, the east
+# one's in its west wall, joined by a tunnel 1 m wide and 1.5 m long.
+TWINS = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 1.0], [5.5, 1.0], [5.5, 0.0], [9.5, 0.0], [9.5, 3.0], [5.5, 3.0],
+                  [5.5, 2.0], [4.0, 2.0], [4.0, 3.0], [0.0, 3.0]])
+TWIN_WEST = [(1.0, 1.0), (2.6, 2.1), (3.3, 0.7)]
+
+
+def _twin_groups(tunnel_station):
+    """The west chamber's group, and the east chamber's with a station in the tunnel, as site-graph holds
+    them (each in the frame of its first scan); and where the east group truly lies in the west's."""
+    rng = np.random.default_rng(3)
+    east = [(7.0, 1.4), (8.3, 2.2), tunnel_station]
+    groups = []
+    for positions in (TWIN_WEST, east):
+        scans = [polygon_scan([TWINS], p, 0.0, rng=rng, n_beams=400, max_range_m=6.0) for p in positions]
+        origin = np.asarray(positions[0])
+        groups.append(Cloud(scans, [np.array([*(np.asarray(p) - origin), 0.0]) for p in positions]))
+    return groups[0], groups[1], np.asarray(east[0]) - np.asarray(TWIN_WEST[0])
+
+
+def test_a_look_alike_place_that_lays_walls_in_water_is_no_rival():
+    """Laid on the west chamber, the east one agrees with every wall and scores nearly as well as its true
+    place; but its mouth then lies on the west's solid wall and the west's mouth on its own, where the
+    other group's sonars saw water. As a rival it pays for those walls at the heavier penalty, and the
+    fit joins the groups where they lie; weighed as the search weighs it, the fit is ambiguous."""
+    west, east, truth = _twin_groups((5.2, 1.5))
+    settings = GroupFitSettings()
+    fit = fit_groups(west, east, settings)
+    assert accept(fit, settings) == ""
+    assert np.hypot(*(fit.pose[:2] - truth)) < 0.05
+    even = GroupFitSettings(rival_free_penalty=settings.free_penalty)
+    assert accept(fit_groups(west, east, even), even).startswith("ambiguous")
+
+
+def test_the_true_place_stays_a_rival_where_the_look_alike_scores_best():
+    """With the tunnel station nearer the east chamber, the overlay scores best; the true place lays no
+    more wall in water than it, so it keeps its score as a rival and the fit is refused, not joined
+    5.5 m off."""
+    west, east, truth = _twin_groups((5.4, 1.5))
+    settings = GroupFitSettings()
+    fit = fit_groups(west, east, settings)
+    assert np.hypot(*(fit.pose[:2] - truth)) > 5.0
+    assert accept(fit, settings).startswith("ambiguous")

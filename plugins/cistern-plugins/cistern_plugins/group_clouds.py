@@ -122,7 +122,8 @@ def orientation_bins(normals: np.ndarray, bins: int = ORIENTATIONS) -> np.ndarra
 
 class Raster:
     """A cloud rasterised on a grid of one frame: occupied cells per orientation bin, and per bin the
-    likelihood field of the walls it agrees with, minus the free-space penalty."""
+    likelihood field of the walls it agrees with, minus the free-space penalty where ``free`` (the cells
+    the cloud's sonars saw empty, :meth:`Cloud.in_free_space`)."""
 
     def __init__(self, cloud: Cloud, lo: np.ndarray, shape: tuple[int, int], cell_m: float, sigma_m: float,
                  penalty: float, rotation: float = 0.0, bins: int = ORIENTATIONS):
@@ -147,9 +148,12 @@ class Raster:
                 dist = ndimage.distance_transform_edt(~near) * cell_m
                 self.field[k] = np.exp(-0.5 * (dist / sigma_m) ** 2)
             self.field[k][free[k]] -= penalty
+        self.free = free
 
-    def sample(self, points: np.ndarray, bins: np.ndarray) -> np.ndarray:
-        """The field of each point's bin at the point, interpolated bilinearly (0 outside the grid)."""
+    def sample(self, points: np.ndarray, bins: np.ndarray, layer: np.ndarray | None = None) -> np.ndarray:
+        """The field (or another ``layer`` of the raster's shape, such as ``free``) of each point's bin at
+        the point, interpolated bilinearly (0 outside the grid)."""
+        layer = self.field if layer is None else layer
         u = (points - self.lo) / self.cell - 0.5
         base = np.floor(u).astype(np.int64)
         frac = u - base
@@ -158,7 +162,7 @@ class Raster:
             cols, rows = base[..., 0] + dc, base[..., 1] + dr
             inside = (cols >= 0) & (rows >= 0) & (cols < self.shape[1]) & (rows < self.shape[0])
             weight = (frac[..., 0] if dc else 1 - frac[..., 0]) * (frac[..., 1] if dr else 1 - frac[..., 1])
-            values = self.field[np.broadcast_to(bins, rows.shape), np.where(inside, rows, 0), np.where(inside, cols, 0)]
+            values = layer[np.broadcast_to(bins, rows.shape), np.where(inside, rows, 0), np.where(inside, cols, 0)]
             out += np.where(inside, weight * values, 0.0)
         return out
 
