@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+import cistern_plugins.site_groups as site_groups
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_archive.pipeline.contracts import MatchResult
 from cistern_plugins.alignment import scan_points
@@ -248,8 +249,6 @@ def test_a_return_to_the_first_chamber_does_not_make_the_last_one_its_neighbour(
     came back through a passage it recorded nothing in, so ``r1`` says nothing of where the east chamber
     lies, and the two chambers, visited two stations apart otherwise, are not fitted as wholes. Counted
     as the east chamber's neighbour (without the rule), ``r1`` lets the fit join them."""
-    import cistern_plugins.site_groups as site_groups
-
     rng = np.random.default_rng(9)
     elsewhere = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 5.0], [0.0, 5.0]]) + [40.0, 0.0]
     back = (2.0, 2.0)
@@ -267,20 +266,27 @@ def test_a_return_to_the_first_chamber_does_not_make_the_last_one_its_neighbour(
     assert graph.group[5] == graph.group[0]
 
 
+def _tunnel_site():
+    """Both chambers' stations with one inside the tunnel, visited between them, hearing its two walls and
+    little beyond (3 m range); matches within each chamber only."""
+    rng = np.random.default_rng(9)
+    positions = WEST + [TUNNEL] + EAST
+    scans = [_scan(p, rng, f"s{k + 1}") for k, p in enumerate(positions)]
+    inside = polygon_scan([SITE], TUNNEL, 0.0, rng=rng, n_beams=400, max_range_m=3.0)
+    scans[3] = inside.__class__(**{**inside.__dict__, "station": "s4"})
+    matches = [_match(i, j, positions) for i in range(7) for j in range(7)
+               if i != j and 3 not in (i, j) and (i < 3) == (j < 3)]
+    return positions, scans, matches
+
+
 def test_a_station_inside_the_tunnel_joins_the_chambers_on_either_side():
     """The two chambers with a station inside the tunnel visited between them, hearing its two walls and
     little beyond (3 m range), and no match across: the tunnel station fits every passage of its width,
     and the chambers were visited a station apart, so no fit of two groups joins them; fitted to each
     chamber, the tunnel station joins the two (:func:`~cistern_plugins.site_groups.join_through_passage`),
     every scan where it lies, both joins reported with how well they place their groups."""
-    rng = np.random.default_rng(9)
-    positions = WEST + [TUNNEL] + EAST
-    scans = [_scan(p, rng, f"s{k + 1}") for k, p in enumerate(positions)]
-    inside = polygon_scan([SITE], TUNNEL, 0.0, rng=rng, n_beams=400, max_range_m=3.0)
-    scans[3] = inside.__class__(**{**inside.__dict__, "station": "s4"})
+    positions, scans, matches = _tunnel_site()
     assert wall_spread(Cloud([scans[3]], [np.zeros(3)])) < GroupFitSettings().min_spread
-    matches = [_match(i, j, positions) for i in range(7) for j in range(7)
-               if i != j and 3 not in (i, j) and (i < 3) == (j < 3)]
     poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
     assert poses.placed.all()
     error = (poses.xy_m - poses.xy_m[0]) - (np.asarray(positions) - positions[0])
@@ -333,3 +339,14 @@ def test_the_true_place_stays_a_rival_where_the_look_alike_scores_best():
     fit = fit_groups(west, east, settings)
     assert np.hypot(*(fit.pose[:2] - truth)) > 5.0
     assert accept(fit, settings).startswith("ambiguous")
+
+
+def test_a_passage_that_does_not_fit_says_so_in_its_stations_reasons(monkeypatch):
+    """The tunnel station of the test above, when its fits may leave no more than a millimetre loose:
+    the chambers stay apart and the tunnel station's reason says the passage was fitted and why it was
+    refused, not only that its walls run one way."""
+    monkeypatch.setattr(site_groups, "PASSAGE_FIT_SIGMA_M", 0.001)
+    _, scans, matches = _tunnel_site()
+    poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert poses.placed.tolist() == [True] * 3 + [False] * 4
+    assert "fitted as a passage to s1's group: it fits within ±" in poses.reasons[3]

@@ -545,9 +545,13 @@ whose ends its stations do not hear fits anywhere along itself (the fit's covari
 ``MAX_SIGMA``), and a group placed through it would be placed by that much."""
 
 
-def loose_along(fit: GroupFit) -> bool:
-    """Whether a passage's fit leaves its place along some direction looser than :data:`PASSAGE_FIT_SIGMA_M`."""
-    return float(np.sqrt(np.linalg.eigvalsh(fit.covariance[:2, :2]).max())) > PASSAGE_FIT_SIGMA_M
+def loose_along(fit: GroupFit) -> str:
+    """Why a passage's fit leaves its place too loose along some direction (looser than
+    :data:`PASSAGE_FIT_SIGMA_M`), or empty."""
+    sigma = float(np.sqrt(np.linalg.eigvalsh(fit.covariance[:2, :2]).max()))
+    if sigma <= PASSAGE_FIT_SIGMA_M:
+        return ""
+    return f"it fits within ±{sigma:.2f} m along one direction only (σ > {PASSAGE_FIT_SIGMA_M:.2f} m)"
 
 
 def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams,
@@ -557,53 +561,65 @@ def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCh
     station of one group and the next station of another, is fitted as a whole to each
     (:func:`passage_edges`), and the two fits place the far group in the near one's frame, which the
     wall check judges as any join (:func:`merge_checked`). Returns the two edges of the first join made
-    (none when no passage joins two groups)."""
+    (none when no passage joins two groups). A passage tried and refused says why in ``graph.unjoined``
+    for its stations (more precisely than the fits of groups, which refuse any passage seen from inside)."""
     for g in sorted(set(graph.group)):
-        edges = passage_edges(graph, scans, walls, p, digest, g)
-        if edges and merge_checked(graph, walls, edges):
-            note_fitted(graph, edges)
-            return edges
+        edges, why = passage_edges(graph, scans, walls, p, digest, g)
+        if edges:
+            why = merge_checked(graph, walls, edges)
+            if not why:
+                note_fitted(graph, edges)
+                return edges
+            why = f"fitted as a passage between the groups on either side, but {why}"
+        for k in graph.members(g) if why else ():
+            graph.unjoined[k] = why
     return []
 
 
 def passage_edges(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams, digest: str,
-                  g: int) -> list[Edge]:
+                  g: int) -> tuple[list[Edge], str]:
     """The edges of group ``g``'s fits (:func:`group_fit`) to the groups of the stations visited just
     before and just after it, when ``g`` is a passage seen from inside (its walls run one way) that fits
     each clearly (:func:`~cistern_plugins.group_fit.accept`, but for its own spread) and to within
-    :data:`PASSAGE_FIT_SIGMA_M`; empty otherwise. On its own a passage fits every passage of its width;
-    beside each chamber only at one place."""
+    :data:`PASSAGE_FIT_SIGMA_M`; otherwise none, and why a passage did not fit (empty when ``g`` is no
+    passage between two groups). On its own a passage fits every passage of its width; beside each
+    chamber only at one place."""
     members = graph.members(g)
     lo, hi = min(members), max(members)
     if hi - lo + 1 != len(members) or lo == 0 or hi == len(scans) - 1:
-        return []
+        return [], ""
     sides = (graph.group[lo - 1], graph.group[hi + 1])
     if sides[0] == sides[1]:
-        return []
+        return [], ""
     s = p.group_settings()
     edges = []
     for side in sides:
         a, b = level_members(graph, walls.levels, side, lo), level_members(graph, walls.levels, g, lo)
         if not a or not b:
-            return []
+            return [], ""
         fit, spreads = group_fit(scans, graph, a, b, p, digest)
-        if spreads[1] >= s.min_spread or accept(fit, s, (spreads[0], 1.0)) or loose_along(fit):
-            return []
+        if spreads[1] >= s.min_spread:
+            return [], ""
+        why = accept(fit, s, (spreads[0], 1.0)) or loose_along(fit)
+        if why:
+            return [], f"fitted as a passage to {walls.label(a[0])}'s group: {why}"
         edges.append(group_edge(graph, a, b, fit))
-    return edges
+    return edges, ""
 
 
-def merge_checked(graph: Graph, walls: WallCheck, edges: Sequence[Edge]) -> bool:
+def merge_checked(graph: Graph, walls: WallCheck, edges: Sequence[Edge]) -> str:
     """Merge the groups of each edge in turn, each judged by the wall check as the ones before left the
-    groups; on a refusal the graph is left as it was and ``False`` returned."""
+    groups; on a refusal the graph is left as it was and the wall check's reason returned (empty when
+    every edge merged)."""
     saved = (list(graph.group), list(graph.pose))
     for edge in edges:
         z = gtsam.Pose2(*edge.z)
-        if walls.conflict(graph, edge.i, edge.j, z):
+        why = walls.conflict(graph, edge.i, edge.j, z)
+        if why:
             graph.group[:], graph.pose[:] = saved
-            return False
+            return why
         merge_groups(graph, edge.i, edge.j, z)
-    return True
+    return ""
 
 
 def unplaced_reason(k: int, reference: int, graph: Graph, matches: Sequence[MatchResult], labels: Sequence[str]) -> str:
