@@ -299,8 +299,8 @@ def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], 
     The search's penalty keeps one chamber from being laid inside another on the walls they share, but
     two chambers of one shape laid on each other agree on every wall and conflict only where one's mouth
     meets the other's solid wall: on the tuning sites (seed 4 ``cistern-026``) such an overlay scored 233
-    against the true place's 239, with 45 cells of wall in water against the true place's 1.6, and the
-    fit was refused as ambiguous. A place that puts walls where the other group's sonars saw water is
+    against the right place's 239, with 45 cells of wall in water against its 1.6, and the fit was
+    refused as ambiguous. A place that puts walls where the other group's sonars saw water is
     no likely alternative; a rival that does not (another look-alike of the same quality) keeps its
     score. Each rival is refined first (:func:`refine`), as the best is, so that both are judged at
     their own peaks. The best place itself is chosen as before: scoring every place at the heavier

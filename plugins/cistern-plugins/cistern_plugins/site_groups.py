@@ -571,8 +571,9 @@ def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCh
                 note_fitted(graph, edges)
                 return edges
             why = f"fitted as a passage between the groups on either side, but {why}"
-        for k in graph.members(g) if why else ():
-            graph.unjoined[k] = why
+        if why:
+            for k in graph.members(g):
+                graph.unjoined[k] = why
     return []
 
 
