@@ -318,8 +318,8 @@ def _twin_groups(tunnel_station):
 
 def test_a_look_alike_place_that_lays_walls_in_water_is_no_rival():
     """Laid on the west chamber, the east one agrees with every wall and scores nearly as well as its true
-    place; but its mouth then lies on the west's solid wall and the west's mouth on its own, where the
-    other group's sonars saw water. As a rival it pays for those walls at the heavier penalty, and the
+    place; but its mouth then lies on the west's solid wall and the west's mouth on its solid wall, where
+    the other group's sonars saw water. As a rival it pays for those walls at the heavier penalty, and the
     fit joins the groups where they lie; weighed as the search weighs it, the fit is ambiguous."""
     west, east, truth = _twin_groups((5.2, 1.5))
     settings = GroupFitSettings()
@@ -342,7 +342,7 @@ def test_the_true_place_stays_a_rival_where_the_look_alike_scores_best():
 
 
 def test_a_passage_that_does_not_fit_says_so_in_its_stations_reasons(monkeypatch):
-    """The tunnel station of the test above, when its fits may leave no more than a millimetre loose:
+    """The tunnel site (:func:`_tunnel_site`), when a passage's fits may leave no more than a millimetre loose:
     the chambers stay apart and the tunnel station's reason says the passage was fitted and why it was
     refused, not only that its walls run one way."""
     monkeypatch.setattr(site_groups, "PASSAGE_FIT_SIGMA_M", 0.001)
