@@ -283,7 +283,7 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
     polished_score = float(fine(polished[None, :])[0])
     if polished_score >= score - POLISH_TOLERANCE:
         pose, score = polished, polished_score
-    rival = credible_rival(fine, peaks[1:], pose, s)
+    rival = credible_rival(fine, peaks[1:], pose, best_coarse, s)
     covariance = score_covariance(fine, pose)
     covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, peaks[0][1])
     return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
@@ -291,10 +291,12 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
 
 
 def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], best: np.ndarray,
-                   s: GroupFitSettings) -> float:
-    """The coarse score of the best rival place (``rivals``: the search's next peaks, :func:`distinct_peaks`)
-    once each pays for the walls it lays in water beyond what ``best`` lays there, at
-    ``rival_free_penalty`` instead of the search's ``free_penalty`` per cell.
+                   best_coarse: float, s: GroupFitSettings) -> float:
+    """The coarse score of the best rival place (``rivals``: the search's next peaks, best first,
+    :func:`distinct_peaks`) once each pays for the walls it lays in water beyond what ``best`` (coarse
+    score ``best_coarse``) lays there, at ``rival_free_penalty`` instead of the search's ``free_penalty``
+    per cell. Only rivals above ``ambiguity_ratio`` of the best could make the fit ambiguous; the first
+    one under it keeps its coarse score unjudged, as every one after it would stay under it.
 
     The search's penalty keeps one chamber from being laid inside another on the walls they share, but
     two chambers of one shape laid on each other agree on every wall and conflict only where one's mouth
@@ -307,9 +309,12 @@ def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], 
     penalty, or choosing the best by it, accepted fewer right fits on the tuning seeds.
     """
     extra = s.rival_free_penalty - s.free_penalty
-    own = float(fine.conflict(best[None, :])[0])
+    own = None
     out = 0.0
     for coarse, pose in rivals:
+        if coarse <= s.ambiguity_ratio * best_coarse:
+            return max(out, coarse)
+        own = float(fine.conflict(best[None, :])[0]) if own is None else own
         placed = refine(fine, pose, s)[0]
         out = max(out, coarse - extra * max(0.0, float(fine.conflict(placed[None, :])[0]) - own))
     return out

@@ -515,12 +515,11 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
             graph.unjoined.setdefault(k, why)
         for _, a, b, fit in sorted(candidates, key=lambda c: -c[0]):
             edge = group_edge(graph, a, b, fit)
-            why = walls.conflict(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
+            why = merge_checked(graph, walls, [edge])
             if why:
                 for k in b:
                     graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group, but {why}")
                 continue
-            merge_groups(graph, edge.i, edge.j, gtsam.Pose2(*edge.z))
             note_fitted(graph, [edge])
             added.append(edge)
             break
