@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from cistern_archive.core.matches import MatchResult
+from cistern_plugins import site_groups
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_plugins.factor_graph import Edge
 from cistern_plugins.settled_groups import SETTLED_TWO_WAY_SHARE, recheck_groups, runs_of, settled_splits
@@ -98,8 +99,6 @@ def test_localize_leaves_the_smaller_part_unplaced_with_the_reason(look_alike, m
     join of b1 alone onto the first room is refused at once, a1 and a2 each seeing its niche cross their
     water; with a lone scan's views counted as one (as before), the whole rooms are judged once joined
     and the smaller part is cut off."""
-    from cistern_plugins import site_groups
-
     scans = two_rooms(niche_room([1.5, 3.2] if look_alike else [0.5, 2.6]))
     matches = [m for i in range(4) for m in (match(i, i + 1, XY), match(i + 1, i, XY))]
     poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
