@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from cistern_archive.grid.polygon import polygon_scan
-from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel, seen_from_behind, verdict
+from cistern_plugins.alignment import ConvergenceThresholds, ReferenceModel, parallel_walls, seen_from_behind, verdict
 
 # Two look-alike rooms, 0.6 m of rock between them: room A west, room B east.
 ROOM_A = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]])
@@ -36,3 +37,29 @@ def test_two_rooms_laid_back_to_back_share_no_inliers():
     same_room = polygon_scan([ROOM_A], (1.2, 1.0), 0.0, rng=rng, n_beams=400, max_range_m=6.0)
     right = ReferenceModel(a).assess_pair(same_room, np.array([-0.8, -0.5, 0.0]), limits)
     assert right.behind == 0 and verdict(right, limits) == ""
+
+
+# A chamber 6 x 5 m with a tunnel 0.8 m wide leaving its east wall; a station 0.5 m inside the tunnel
+# hears the tunnel's walls end right at the chamber's wall beside the mouth.
+MOUTH = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 2.1], [10.0, 2.1], [10.0, 2.9], [6.0, 2.9], [6.0, 5.0], [0.0, 5.0]])
+
+
+@pytest.mark.parametrize("off_m", [0.0, 0.1])
+def test_a_tunnel_meeting_a_chamber_wall_at_its_mouth_is_no_wall_seen_from_behind(off_m):
+    """The tunnel's side walls end on the chamber's wall beside the mouth, and the station in the tunnel
+    stands behind that wall: with the sonars' positions alone its wall points there look laid on the
+    chamber's wall from behind, the more so when the join is a few centimetres off along the tunnel. The
+    two walls meet across each other, as at a corner, not face to face."""
+    rng = np.random.default_rng(1)
+    in_tunnel = polygon_scan([MOUTH], (6.5, 2.5), 0.0, rng=rng, n_beams=400, max_range_m=5.0)
+    in_chamber = polygon_scan([MOUTH], (3.0, 2.5), 0.0, rng=rng, n_beams=400, max_range_m=5.0)
+    pose = np.array([-3.5 + off_m, 0.0, 0.0])  # the chamber's station in the tunnel's, off along the tunnel
+    assert ReferenceModel(in_tunnel).assess_pair(in_chamber, pose, ConvergenceThresholds()).behind == 0
+
+
+def test_only_walls_that_run_alike_are_two_faces_of_one_wall():
+    along_x, along_y = np.array([[0.0, 1.0]]), np.array([[1.0, 0.0]])
+    assert parallel_walls(along_x, -along_x).tolist() == [True]
+    assert parallel_walls(along_x, along_y).tolist() == [False]
+    tilted = np.array([[np.sin(np.radians(30)), np.cos(np.radians(30))]])
+    assert parallel_walls(along_x, tilted).tolist() == [True]

@@ -218,14 +218,16 @@ class ConvergenceParams(StageParams):
 def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndarray, moved: np.ndarray,
                      max_range_m: float, inlier_distance_m: float,
                      visible: np.ndarray | None = None, moving_origin: np.ndarray | None = None,
-                     weight: float = 1.0) -> AlignmentQuality:
+                     weight: float = 1.0, moved_normals: np.ndarray | None = None) -> AlignmentQuality:
     """Measure the fit of already transformed moving points ``moved`` against the reference points.
 
     The inlier share is taken over the *candidates*: the moving points within the reference sonar's
     range and, when ``visible`` is given, that it could have seen (not behind one of its own walls).
     With the moving sonar's position in the reference frame (``moving_origin``), a moving point on a
-    reference wall that the two sonars see from opposite sides (:func:`seen_from_behind`) is no inlier.
-    ``weight`` is the moving scan's :func:`point_weight`.
+    reference wall that the two sonars see from opposite sides (:func:`seen_from_behind`) is no inlier;
+    with the moving points' own wall normals (``moved_normals``, in the reference frame), only where the
+    two walls run alike (:func:`parallel_walls`): the two faces of one wall, not a wall ending at another's
+    corner. ``weight`` is the moving scan's :func:`point_weight`.
     """
     dist, idx = tree.query(moved, k=1)
     in_range = np.hypot(moved[:, 0], moved[:, 1]) <= max_range_m
@@ -235,7 +237,10 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
     behind = 0
     if moving_origin is not None and inlier.any():
         hits = np.flatnonzero(inlier)
-        back = hits[seen_from_behind(ref_points[idx[hits]], ref_normals[idx[hits]], moving_origin)]
+        behind_mask = seen_from_behind(ref_points[idx[hits]], ref_normals[idx[hits]], moving_origin)
+        if moved_normals is not None:
+            behind_mask &= parallel_walls(moved_normals[hits], ref_normals[idx[hits]])
+        back = hits[behind_mask]
         if len(back) >= BEHIND_SHARE * len(hits):
             behind = len(back)
             inlier[back] = False
@@ -254,10 +259,10 @@ def assess_alignment(ref_points: np.ndarray, tree: cKDTree, ref_normals: np.ndar
 
 BEHIND_SHARE = 0.25
 """Share of the inliers seen from opposite sides of their walls (:func:`seen_from_behind`) from which
-they count as none. At their true poses, 149 of the 2,706 same-level pairs of 48 random multi-chamber
+they count as none. At their true poses, 11 of the 2,706 same-level pairs of 48 random multi-chamber
 cisterns (``benchmarks/wall_tests.py``) have a quarter or more so, at corners where a wall's normal is
-ill-defined; only 17 of them share 25 points or more. A wall laid on another from behind has most of its
-inliers so."""
+ill-defined, none of them 25 points or more (149 and 17 while walls that meet across each other counted
+too, :func:`parallel_walls`). A wall laid on another from behind has most of its inliers so."""
 
 
 def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.ndarray) -> np.ndarray:
@@ -269,7 +274,10 @@ def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.nd
     by side lays one chamber's wall onto the other's from behind — every point fits and no wall falls
     into water, since each sonar's water lies on its own side. Rock between chambers is thicker than the
     inlier distance, so a right match does not pair the two faces of one wall; only a normal that is
-    wrong, at a corner, makes a right pair look so (:data:`BEHIND_SHARE`). Views within
+    wrong, at a corner, makes a right pair look so (:data:`BEHIND_SHARE`), or a wall ending on another
+    — a tunnel's side wall on the chamber's wall beside its mouth, which the station in the tunnel
+    stands behind — where the moving scan's own wall runs across the reference's
+    (:func:`parallel_walls`, which :func:`assess_alignment` applies when it has those normals). Views within
     ``GRAZING_DEG`` of the wall's plane, where a normal's error could flip the side, are not judged.
     """
     least = math.sin(math.radians(GRAZING_DEG))
@@ -278,6 +286,19 @@ def seen_from_behind(wall: np.ndarray, normals: np.ndarray, moving_origin: np.nd
     cos_ref = np.einsum("ij,ij->i", to_ref, normals) / np.maximum(np.hypot(to_ref[:, 0], to_ref[:, 1]), 1e-9)
     cos_mov = np.einsum("ij,ij->i", to_mov, normals) / np.maximum(np.hypot(to_mov[:, 0], to_mov[:, 1]), 1e-9)
     return (cos_ref * cos_mov < 0) & (np.abs(cos_ref) >= least) & (np.abs(cos_mov) >= least)
+
+
+PARALLEL_DEG = 45.0
+"""Two walls whose normals lie within this angle of each other (either sign) run alike; beyond it they
+meet as at a corner (:func:`parallel_walls`)."""
+
+
+def parallel_walls(normals: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Mask of points whose wall runs alike the other's (normals within :data:`PARALLEL_DEG`, either
+    sign). Two look-alike chambers laid back to back lay a wall's two faces onto each other, and those
+    run alike; a right join at a tunnel's mouth lays the tunnel's side walls on the chamber's wall beside
+    the mouth only where they meet it at a corner, across it."""
+    return np.abs(np.einsum("ij,ij->i", normals, other)) >= math.cos(math.radians(PARALLEL_DEG))
 
 
 def hard_limits(quality: AlignmentQuality, limits: ConvergenceThresholds, *, ratio: bool = True) -> str:
@@ -582,13 +603,14 @@ class ReferenceModel:
         the wall points each sonar could have seen face-on (:meth:`FreeSpace.violations`)."""
         src = scan_points(moving)
         moved = transform(src, pose)
-        seen = self.free.visible(moved, limits.free_space_margin_m)
-        q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
-                             seen, moving_origin=np.asarray(pose[:2], dtype=np.float64), weight=point_weight(moving))
-        back = transform(self.points, inverse(pose))
-        mov_free = FreeSpace(moving, open_sector_rad=math.radians(OPEN_SECTOR_DEG))
         mov_tree = cKDTree(src) if len(src) >= 3 else None
         mov_normals = estimate_normals(src, mov_tree) if mov_tree is not None else None
+        seen = self.free.visible(moved, limits.free_space_margin_m)
+        q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
+                             seen, moving_origin=np.asarray(pose[:2], dtype=np.float64), weight=point_weight(moving),
+                             moved_normals=None if mov_normals is None else rotate(mov_normals, pose[2]))
+        back = transform(self.points, inverse(pose))
+        mov_free = FreeSpace(moving, open_sector_rad=math.radians(OPEN_SECTOR_DEG))
         bad1, seen1 = self.free.violation_mask(moved, limits.free_space_margin_m,
                                                None if mov_normals is None else rotate(mov_normals, pose[2]))
         bad2, seen2 = mov_free.violation_mask(back, limits.free_space_margin_m,
@@ -601,7 +623,8 @@ class ReferenceModel:
         if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
             rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
                                   mov_free.visible(back, limits.free_space_margin_m),
-                                  moving_origin=np.asarray(inverse(pose)[:2], dtype=np.float64), weight=self.weight)
+                                  moving_origin=np.asarray(inverse(pose)[:2], dtype=np.float64), weight=self.weight,
+                                  moved_normals=rotate(self.normals, -pose[2]) if len(self.normals) else None)
             if rq.inlier_ratio < q.inlier_ratio:
                 fewer = min((q, rq), key=lambda x: x.equivalent_inliers)
                 q = AlignmentQuality(fewer.inliers, rq.candidates, q.n_points, q.rms_m, min(q.constraint, rq.constraint),
