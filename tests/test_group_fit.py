@@ -266,6 +266,26 @@ def test_a_return_to_the_first_chamber_does_not_make_the_last_one_its_neighbour(
     assert graph.group[5] == graph.group[0]
 
 
+def test_a_station_matched_only_far_back_in_its_own_chamber_still_neighbours_the_next_chamber():
+    """The west chamber's last station, ``w4``, visited right before the east chamber's first, matched
+    only with ``w1`` (its matches with ``w2`` and ``w3``, visited just before it, failed): as far back
+    as a return to the first chamber, but the survey never left the chamber in between, so ``w4`` is
+    the east chamber's neighbour and the two are fitted as wholes."""
+    rng = np.random.default_rng(9)
+    positions = WEST + [(4.2, 3.3)] + EAST
+    scans = [_scan(p, rng, f"w{k + 1}") for k, p in enumerate(positions[:4])]
+    scans += [_scan(p, rng, f"e{k + 1}") for k, p in enumerate(EAST)]
+    west = [(i, j) for i in range(3) for j in range(3) if i != j] + [(0, 3), (3, 0)]
+    east = [(i, j) for i in range(4, 7) for j in range(4, 7) if i != j]
+    matches = [_match(i, j, positions) for i, j in west + east]
+    graph = consistent_edges(scans, matches, SiteGraphParams())
+    assert site_groups.joined_in_sequence(graph, 3)
+    poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert poses.placed.all()
+    error = (poses.xy_m[4:] - poses.xy_m[0]) - (np.asarray(EAST) - WEST[0])
+    assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2
+
+
 def _tunnel_site():
     """Both chambers' stations with one inside the tunnel, visited between them, hearing its two walls and
     little beyond (3 m range); matches within each chamber only."""

@@ -82,9 +82,9 @@ builds a graph over the whole site instead, in three steps.
    ``group_max_gap`` places apart in the survey's order): across stations that neither group holds, a
    fit cannot tell the real join from a look-alike chamber, and on the tuning sites such joins laid
    chambers 7–10 m off (RESULTS.md "2026-12-04 (night)"). A station joined to its group only by links to
-   stations visited three or more places before it is not counted
-   (:func:`~cistern_plugins.site_groups.joined_in_sequence`): a return to the first chamber is recorded
-   right after the last chamber's station, not near it. The clearest accepted fit joins first, until
+   stations visited three or more places before it, with other groups' stations visited in between, is
+   not counted (:func:`~cistern_plugins.site_groups.joined_in_sequence`): a return to the first chamber
+   is recorded right after the last chamber's station, not near it. The clearest accepted fit joins first, until
    none is left. Its edge carries the covariance of the fit's score, wide along a tunnel that both
    groups see end to end. When no fit is left, a passage seen from inside between two groups — the
    stations of a tunnel, visited one after another between a station of each (``group_passages``,

@@ -449,22 +449,28 @@ def survey_gap(a: Sequence[int], b: Sequence[int]) -> int:
 
 
 RETURN_PLACES = 3
-"""A station whose every link joins it to stations visited this many places or more before it came back
-to them (:func:`joined_in_sequence`). Two places back is the survey's chain skipping one station whose
-own matches failed (a station in a tunnel): the vehicle passed there, and the skipped station lies
-between."""
+"""A station whose every link joins it to stations visited this many places or more before it, with
+stations of other groups visited in between, came back to them (:func:`joined_in_sequence`). Two places
+back is the survey's chain skipping one station whose own matches failed (a station in a tunnel): the
+vehicle passed there, and the skipped station lies between."""
 
 
 def joined_in_sequence(graph: Graph, k: int) -> bool:
     """Whether station ``k`` stands where the survey's chain left it: alone in its group, or joined to it
     by a link (a match, a fit or a vertical tie) with a station visited at most two places before it, or
-    after it. A station whose every link joins it to stations visited ``RETURN_PLACES`` or more places
-    before it came back to them — a return to the first chamber at the end of a survey — through
-    passages the survey did not record, so the station visited just before it need not be near it, and
-    a group fit may not count the two as visited one after the other."""
+    after it, or with an earlier one such that every station visited in between belongs to its group
+    too (the survey never left the group's chamber, only its matches with the stations just before it
+    failed). A station whose every link joins it to stations visited ``RETURN_PLACES`` or more places
+    before it, with stations of other groups visited in between, came back to them — a return to the
+    first chamber at the end of a survey — through passages the survey did not record, so the station
+    visited just before it need not be near it, and a group fit may not count the two as visited one
+    after the other."""
     links = [(e.i, e.j) for e in (*graph.edges, *graph.ties)] + graph.fitted
     ends = [j if i == k else i for i, j in links if k in (i, j)]
-    return not ends or max(ends) > k - RETURN_PLACES
+    if not ends or max(ends) > k - RETURN_PLACES:
+        return True
+    own = graph.group[k]
+    return all(graph.group[m] == own for m in range(max(ends) + 1, k))
 
 
 def far_apart_reason(gap: int, max_gap: int) -> str:
