@@ -603,28 +603,29 @@ class ReferenceModel:
         the wall points each sonar could have seen face-on (:meth:`FreeSpace.violations`)."""
         src = scan_points(moving)
         moved = transform(src, pose)
+        home = inverse(pose)
         mov_tree = cKDTree(src) if len(src) >= 3 else None
         mov_normals = estimate_normals(src, mov_tree) if mov_tree is not None else None
+        moved_normals = None if mov_normals is None else rotate(mov_normals, pose[2])
+        back_normals = rotate(self.normals, -pose[2]) if len(self.normals) else None
         seen = self.free.visible(moved, limits.free_space_margin_m)
         q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
                              seen, moving_origin=np.asarray(pose[:2], dtype=np.float64), weight=point_weight(moving),
-                             moved_normals=None if mov_normals is None else rotate(mov_normals, pose[2]))
-        back = transform(self.points, inverse(pose))
+                             moved_normals=moved_normals)
+        back = transform(self.points, home)
         mov_free = FreeSpace(moving, open_sector_rad=math.radians(OPEN_SECTOR_DEG))
-        bad1, seen1 = self.free.violation_mask(moved, limits.free_space_margin_m,
-                                               None if mov_normals is None else rotate(mov_normals, pose[2]))
-        bad2, seen2 = mov_free.violation_mask(back, limits.free_space_margin_m,
-                                              rotate(self.normals, -pose[2]) if len(self.normals) else None)
+        bad1, seen1 = self.free.violation_mask(moved, limits.free_space_margin_m, moved_normals)
+        bad2, seen2 = mov_free.violation_mask(back, limits.free_space_margin_m, back_normals)
         n1, n2 = int(seen1.sum()), int(seen2.sum())
         ratios = (bad1.sum() / n1 if n1 else 0.0, bad2.sum() / n2 if n2 else 0.0)
         gap = 2 * limits.inlier_distance_m
-        run = max(longest_run_m(src, bad1, gap, viewer=inverse(pose)[:2]),
+        run = max(longest_run_m(src, bad1, gap, viewer=home[:2]),
                   longest_run_m(self.points, bad2, gap, viewer=np.asarray(pose[:2], dtype=np.float64)))
         if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
             rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
                                   mov_free.visible(back, limits.free_space_margin_m),
-                                  moving_origin=np.asarray(inverse(pose)[:2], dtype=np.float64), weight=self.weight,
-                                  moved_normals=rotate(self.normals, -pose[2]) if len(self.normals) else None)
+                                  moving_origin=np.asarray(home[:2], dtype=np.float64), weight=self.weight,
+                                  moved_normals=back_normals)
             if rq.inlier_ratio < q.inlier_ratio:
                 fewer = min((q, rq), key=lambda x: x.equivalent_inliers)
                 q = AlignmentQuality(fewer.inliers, rq.candidates, q.n_points, q.rms_m, min(q.constraint, rq.constraint),
