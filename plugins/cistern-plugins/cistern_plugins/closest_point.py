@@ -66,14 +66,9 @@ def run_icp(model: ReferenceModel, src: np.ndarray, pose0: np.ndarray, *, varian
 
 
 def refine_point_to_line(model: ReferenceModel, src: np.ndarray, pose: np.ndarray, *, iterations: int,
-                         correspondence_m: float, trim_fraction: float, max_shift_m: float,
-                         max_wall_shift_m: float | None = None) -> np.ndarray | None:
+                         correspondence_m: float, trim_fraction: float, max_shift_m: float) -> np.ndarray | None:
     """``pose`` refined by trimmed point-to-line ICP (:func:`run_icp`), or ``None`` when the refinement
-    moves the sonar farther than ``max_shift_m`` (it slid away along a corridor or onto another wall) or,
-    given ``max_wall_shift_m``, moves the scan's walls farther than that (:func:`wall_shift`: a turn about
-    the sonar counts as much as a shift of it, as when it turns round a room that is nearly round). A
-    search exact to a cell and to a yaw step (``correlative``) bounds both; one that samples its poses
-    (the particle matchers) leaves the turn to the refinement.
+    moves it farther than ``max_shift_m`` (it slid away along a corridor or onto another wall).
 
     The search matchers (pf-pairwise, particle-icp, correlative) find the right basin on a coarse score;
     point-to-line distances to the reference's local wall lines then settle the pose without the pull a
@@ -84,18 +79,7 @@ def refine_point_to_line(model: ReferenceModel, src: np.ndarray, pose: np.ndarra
                   tolerance_m=1e-4)
     if math.hypot(out.pose[0] - pose[0], out.pose[1] - pose[1]) > max_shift_m:
         return None
-    walls_moved = max_wall_shift_m is not None and wall_shift(src, np.asarray(pose, dtype=np.float64), out.pose)
-    if walls_moved and walls_moved > max_wall_shift_m:
-        return None
     return out.pose
-
-
-def wall_shift(src: np.ndarray, before: np.ndarray, after: np.ndarray) -> float:
-    """How far the points ``src`` move from pose ``before`` to pose ``after`` (metres, the 95th
-    percentile; the sonar's own shift for no points)."""
-    if len(src) == 0:
-        return float(math.hypot(after[0] - before[0], after[1] - before[1]))
-    return float(np.percentile(np.hypot(*(transform(src, after) - transform(src, before)).T), 95))
 
 
 def _cycling(poses: np.ndarray, tolerance_m: float) -> bool:

@@ -21,10 +21,7 @@ compass's noise). A search without a guess is then repeated with the yaw window 
 window (``guess_search_deg``): the guess's heading comes from a solution of the site. Either way the
 refinement below may not turn the pose out of the window the search covered by more than one of its yaw
 steps: that pose was never scored against its rivals (on the bell cistern such a match, its guess's
-window ±6°, came out turned 17° from the truth). Nor may the refinement move the scan's walls (not only
-its sonar) by more than four cells: the search already placed them to one cell, and a refinement that
-turns the scan about its sonar beyond that has left the search's peak (on the three-chamber demo site
-one turned a match 6° and moved it 0.11 m off where the search had it 0.02 m from the truth).
+window ±6°, came out turned 17° from the truth).
 
 Convergence is honest on five counts: the best score reaches ``min_score``; the best heading lies inside
 the yaw window, and the refined one stays in it (above); no pose farther than
@@ -314,7 +311,7 @@ class CorrelativeMatcher(GuidedMatcher):
         if p.refine_iterations:
             refined = refine_point_to_line(model, raw, best, iterations=p.refine_iterations,
                                            correspondence_m=p.inlier_distance_m + 2 * p.sigma_m, trim_fraction=0.8,
-                                           max_shift_m=4 * p.resolution_m, max_wall_shift_m=4 * p.resolution_m)
+                                           max_shift_m=4 * p.resolution_m)
             pose = best if refined is None else refined
         turned = abs(wrap_angle(pose[2] - centre[2]))
         if not reason and turned > math.radians(half_deg) + yaw_step(angles):

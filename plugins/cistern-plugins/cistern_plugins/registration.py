@@ -32,7 +32,7 @@ The verdict on a fit
 Point-to-line ICP
     :func:`run_icp` (trimmed point-to-point or point-to-line ICP from a starting pose, an
     :class:`ICPOutcome`); :func:`refine_point_to_line` (polish a search matcher's estimate without the
-    along-gallery pull of a point score; ``None`` when it slides, or turns the scan's walls, farther than allowed) and
+    along-gallery pull of a point score; ``None`` when it slides farther than allowed) and
     :func:`fit_covariance` (the 3 × 3 covariance of a point-to-line fit, for ``MatchResult.covariance``).
 
 Example: the end of a search matcher::
