@@ -604,13 +604,14 @@ class ReferenceModel:
         src = scan_points(moving)
         moved = transform(src, pose)
         home = inverse(pose)
+        mov_sonar, ref_sonar = np.asarray(pose[:2], dtype=np.float64), np.asarray(home[:2], dtype=np.float64)
         mov_tree = cKDTree(src) if len(src) >= 3 else None
         mov_normals = estimate_normals(src, mov_tree) if mov_tree is not None else None
         moved_normals = None if mov_normals is None else rotate(mov_normals, pose[2])
         back_normals = rotate(self.normals, -pose[2]) if len(self.normals) else None
         seen = self.free.visible(moved, limits.free_space_margin_m)
         q = assess_alignment(self.points, self.tree, self.normals, moved, self.max_range_m, limits.inlier_distance_m,
-                             seen, moving_origin=np.asarray(pose[:2], dtype=np.float64), weight=point_weight(moving),
+                             seen, moving_origin=mov_sonar, weight=point_weight(moving),
                              moved_normals=moved_normals)
         back = transform(self.points, home)
         mov_free = FreeSpace(moving, open_sector_rad=math.radians(OPEN_SECTOR_DEG))
@@ -619,12 +620,12 @@ class ReferenceModel:
         n1, n2 = int(seen1.sum()), int(seen2.sum())
         ratios = (bad1.sum() / n1 if n1 else 0.0, bad2.sum() / n2 if n2 else 0.0)
         gap = 2 * limits.inlier_distance_m
-        run = max(longest_run_m(src, bad1, gap, viewer=home[:2]),
-                  longest_run_m(self.points, bad2, gap, viewer=np.asarray(pose[:2], dtype=np.float64)))
+        run = max(longest_run_m(src, bad1, gap, viewer=ref_sonar),
+                  longest_run_m(self.points, bad2, gap, viewer=mov_sonar))
         if mov_tree is not None:  # the same fit seen from the moving scan: the smaller inlier share counts
             rq = assess_alignment(src, mov_tree, mov_normals, back, float(moving.max_range_m), limits.inlier_distance_m,
                                   mov_free.visible(back, limits.free_space_margin_m),
-                                  moving_origin=np.asarray(home[:2], dtype=np.float64), weight=self.weight,
+                                  moving_origin=ref_sonar, weight=self.weight,
                                   moved_normals=back_normals)
             if rq.inlier_ratio < q.inlier_ratio:
                 fewer = min((q, rq), key=lambda x: x.equivalent_inliers)
