@@ -61,6 +61,8 @@ def score_bell(path: Path, catalog: Path, params: dict[str, dict]) -> dict:
                   for d in build.result.dimensions if d.reference_kind == "truth" and d.map_m is not None]
     return {"site": loaded.record.id, "status": build.result.status, "placed": row["placed"], "scans": row["scans"],
             "median_aligned_error_m": row["median_aligned_error_m"], **{k: model[k] for k in MODEL_KEYS},
+            "pairs_ge50": row["pairs_ge50"], "pairs_ge50_ok": row["pairs_ge50_ok"],
+            "false_convergences": row["false_convergences"], "aligned_errors_m": row["aligned_errors_m"],
             "dimensions": dimensions, "seconds": round(seconds, 2)}
 
 
@@ -73,7 +75,10 @@ def summary(rows: list[dict]) -> dict:
            "dimensions": len(dims), "covered": sum(d["covered"] for d in dims),
            "dimension_bias_m": statistics.fmean(d["error_m"] for d in dims) if dims else None,
            "dimension_abs_m": statistics.fmean(abs(d["error_m"]) for d in dims) if dims else None,
-           "placed": sum(r["placed"] for r in rows), "scans": sum(r["scans"] for r in rows)}
+           "placed": sum(r["placed"] for r in rows), "scans": sum(r["scans"] for r in rows),
+           **{k: sum(r[k] for r in rows) for k in ("pairs_ge50", "pairs_ge50_ok", "false_convergences")},
+           "median_aligned_error_m": statistics.median(e for r in rows for e in r["aligned_errors_m"]),
+           "max_aligned_error_m": max(e for r in rows for e in r["aligned_errors_m"])}
     return out
 
 

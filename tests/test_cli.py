@@ -50,6 +50,7 @@ def test_plugins_json_lists_builtins_with_provenance():
     assert rows[("matcher", "correlative")]["capabilities"] == ["GuidedMatcher"]
     assert rows[("localizer", "site-graph")]["capabilities"] == ["GuidedLocalizer"]
     assert rows[("localizer", "wls")]["capabilities"] == []
+    assert rows[("mapper", "evidence-grid")]["capabilities"] == ["EchoScaleMapper"]
 
 
 @pytest.mark.parametrize("matcher", ["pf-pairwise"])

@@ -8,6 +8,7 @@ import math
 import numpy as np
 from numpy.testing import assert_allclose
 
+from cistern_archive.core.matches import MatchResult, lengthen_matches
 from cistern_archive.core.poses import Poses
 from cistern_archive.grid.lobe import range_factor, slope_at_zero
 from cistern_archive.grid.polygon import polygon_scan, rectangle
@@ -79,7 +80,24 @@ def test_a_room_leaning_over_the_vehicle_is_mapped_out_to_its_walls():
     assert 30.0 < corrected.stats["lobe_median_lean_deg"] < 50.0
 
 
-def test_a_site_scanned_at_one_depth_is_mapped_as_before():
+def test_the_echo_scale_of_a_room_leaning_over_the_vehicle_is_its_echoes_shortening():
+    """The mapper tells how far each scan's echoes fall short (``EchoScaleMapper``): on the 40° cone
+    every echo is short by the same share, which it reads back from the first slices; the match between
+    two such scans, short by that share, is lengthened back to the true displacement."""
+    scans, poses = cone_scans()
+    shrink = 1.0 / float(range_factor(np.array([LEAN]), DETECTION)[0])
+    scale = EvidenceGridMapper().echo_scale(scans, poses, GridParams(lobe_detection_share=3.0 / 17.5))
+    assert_allclose(scale, shrink, atol=0.01)
+    assert EvidenceGridMapper().echo_scale(scans, poses, GridParams(lobe_correction=False)) is None
+    true = poses.xy_m[1] - poses.xy_m[0]
+    short = MatchResult(i=0, j=1, dx_m=shrink * true[0], dy_m=shrink * true[1], dyaw_rad=0.0, weight=1.0,
+                        converged=True, iterations=1, seconds=0.0)
+    (match,) = lengthen_matches([short], scale)
+    assert_allclose([match.dx_m, match.dy_m], true, atol=0.005)
+    assert match.converged and match.dyaw_rad == 0.0
+
+
+def one_depth_site():
     rng = np.random.default_rng(1)
     box = [rectangle(4.0, 6.0, centre=(2.0, 3.0))]
     positions = [(1.5, 2.0), (2.5, 4.0)]
@@ -87,10 +105,16 @@ def test_a_site_scanned_at_one_depth_is_mapped_as_before():
              for k, xy in enumerate(positions)]
     poses = Poses(xy_m=np.array(positions), yaw_rad=np.array([s.yaw_rad for s in scans]), placed=np.ones(2, bool),
                   reasons=("", ""), reference=0)
+    return scans, poses
+
+
+def test_a_site_scanned_at_one_depth_is_mapped_as_before():
+    scans, poses = one_depth_site()
     mapper = EvidenceGridMapper()
     on, off = mapper.build(scans, poses, GridParams()), mapper.build(scans, poses, GridParams(lobe_correction=False))
     assert np.array_equal(on.grids[0].log_odds, off.grids[0].log_odds)
     assert "lobe_corrected_echoes" not in on.stats
+    assert mapper.echo_scale(scans, poses, GridParams()) is None
 
 
 def test_the_correction_scales_with_the_vertical_beam():

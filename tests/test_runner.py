@@ -176,3 +176,47 @@ def test_a_pair_matched_globally_is_matched_again_when_asked_with_a_guess(bundle
     matcher = Stage.of("matcher", GuessingMatcher())
     matches = match_rounds(scans, Stage.of("localizer", Localizer()), lambda i, j, g: match_pair(matcher, scans, 1, i, j, g))
     assert [(m.i, m.j, m.guess) for m in matches] == [(0, 1, None), (0, 1, guess)]
+
+
+def echo_scale_run(pool_build, bundled_catalog, scale):
+    """A run of the pool's localize step whose mapper tells every scan's echoes fall short by ``scale``."""
+    import dataclasses
+
+    from cistern_archive.pipeline.runner import SiteRun, Stage, resolve_stages
+    from cistern_plugins.evidence_grid import EvidenceGridMapper
+
+    class ShortEchoMapper(EvidenceGridMapper):
+        def echo_scale(self, scans, poses, params):
+            return np.full(len(scans), scale)
+
+    loaded = validate_record(bundled_catalog / "sites" / "lair-pool.yaml", bundled_catalog)
+    stages = resolve_stages(loaded.record, default_registry()) | {"mapper": Stage.of("mapper", ShortEchoMapper())}
+    build = dataclasses.replace(pool_build, matches=list(pool_build.matches), poses=None, echo_scale=None)
+    return SiteRun(loaded=loaded, registry=default_registry(), build=build, stages=stages)
+
+
+def test_matches_are_lengthened_by_the_echo_scale_the_mapper_tells(pool_build, bundled_catalog):
+    """``localize_step``: a mapper that tells the placed scans' echoes fall short by 2 % (an
+    ``EchoScaleMapper``) has every match lengthened by 1 / 0.98 and the scans placed again from them; the
+    pool, at one depth, is built without it (the evidence-grid mapper reads no lean there)."""
+    from cistern_archive.pipeline.runner import localize_step
+
+    assert pool_build.echo_scale is None and all(s.echo_scale is None for s in pool_build.result.scans)
+    run = echo_scale_run(pool_build, bundled_catalog, 0.98)
+    localize_step(run)
+    lengthened = [(m.dx_m / 0.98, m.dy_m / 0.98) for m in pool_build.matches]
+    np.testing.assert_allclose([(m.dx_m, m.dy_m) for m in run.build.matches], lengthened)
+    np.testing.assert_allclose(run.build.echo_scale, 0.98)
+    before, after = pool_build.poses, run.build.poses
+    assert after.placed.all()
+    ref = before.reference
+    np.testing.assert_allclose(after.xy_m - after.xy_m[ref], (before.xy_m - before.xy_m[ref]) / 0.98, atol=0.01)
+
+
+def test_an_echo_scale_that_is_not_a_share_fails_the_map_stage(pool_build, bundled_catalog):
+    from cistern_archive.core.errors import StageError
+    from cistern_archive.pipeline.runner import localize_step
+
+    with pytest.raises(StageError, match="echo scale must be finite") as caught:
+        localize_step(echo_scale_run(pool_build, bundled_catalog, float("nan")))
+    assert caught.value.stage == "map"

@@ -3,6 +3,9 @@ its diagnostics (the matcher stage's output types)."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -151,3 +154,16 @@ class MatchResult:
         nan = float("nan")
         return cls(i=-1, j=-1, dx_m=nan, dy_m=nan, dyaw_rad=nan, weight=weight, converged=False, iterations=0,
                    seconds=seconds, reason=reason)
+
+
+def lengthen_matches(matches: Sequence[MatchResult], scale: np.ndarray) -> list[MatchResult]:
+    """Every match's displacement divided by the mean of its two scans' ``scale`` (scan ``k``'s echo range
+    over the range of its walls): two scans whose echoes fall short by a share ``k`` of their range see
+    the walls shrunk about their own positions, and their match is short by the same share. An estimate
+    without a finite displacement stays as it is; heading, covariance and verdict are kept."""
+    out = []
+    for m in matches:
+        k = 0.5 * (float(scale[m.i]) + float(scale[m.j]))
+        out.append(m if k == 1.0 or not math.isfinite(m.dx_m) else
+                   dataclasses.replace(m, dx_m=m.dx_m / k, dy_m=m.dy_m / k))
+    return out

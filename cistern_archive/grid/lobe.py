@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from cistern_archive.grid.surface import SurfaceParams, signed_distance, slice_w
 
 SAME_LEVEL_M = 0.3
 """Slices closer in depth than this are one depth level."""
+
+MIN_SCALE_ECHOES = 20
+"""A scan's echo scale (:func:`echo_scale`) is read from at least this many echoes with a known lean."""
 
 
 def range_factor(lean_rad: np.ndarray, detection_rad: float) -> np.ndarray:
@@ -118,19 +121,50 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
     leans_deg : ndarray
         The lean read at every corrected echo (degrees), for the map's statistics.
     """
+    out, leans = [], []
+    for scan, factor, lean in echo_factors(scans, poses, grids, detection_share, max_lean_deg, reach_m):
+        out.append(scan if factor is None else dataclasses.replace(scan, ranges_m=scan.ranges_m * factor))
+        if lean is not None:
+            leans.append(np.degrees(lean[np.isfinite(lean)]))
+    return out, np.concatenate(leans) if leans else np.zeros(0)
+
+
+def echo_factors(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[EvidenceGrid], detection_share: float,
+                 max_lean_deg: float, reach_m: float) -> Iterator[tuple[RangeScan, np.ndarray | None, np.ndarray | None]]:
+    """Every scan with ``R / r`` at each of its beams (1 where the lean is unknown) and the lean read at
+    each (radians, capped; ``nan`` where unknown), or ``None`` twice for an unplaced scan or where the
+    slices lie at one depth (parameters as :func:`correct_for_lobe`)."""
     if not grids or np.ptp([g.depth_m for g in grids]) < SAME_LEVEL_M:
-        return list(scans), np.zeros(0)
+        yield from ((scan, None, None) for scan in scans)
+        return
     lattice, waters = signed_waters(grids, poses, [s.depth_m for s in scans])
     cap = math.radians(max_lean_deg)
-    out, leans = [], []
     for k, scan in enumerate(scans):
         if not bool(poses.placed[k]):
-            out.append(scan)
+            yield scan, None, None
             continue
         lean = echo_lean(scan, poses.xy_m[k], float(poses.yaw_rad[k]), lattice, waters, reach_m)
         known = np.isfinite(lean)
         detection = detection_share * scan.vertical_beam_width_rad / 2
         factor = np.where(known, range_factor(np.minimum(np.nan_to_num(lean), cap), detection), 1.0)
-        out.append(dataclasses.replace(scan, ranges_m=scan.ranges_m * factor))
-        leans.append(np.degrees(np.minimum(lean[known], cap)))
-    return out, np.concatenate(leans) if leans else np.zeros(0)
+        yield scan, factor, np.where(known, np.minimum(lean, cap), np.nan)
+
+
+def echo_scale(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[EvidenceGrid], detection_share: float,
+               max_lean_deg: float, reach_m: float, min_echoes: int = MIN_SCALE_ECHOES) -> np.ndarray:
+    """Each scan's echo range over the range of its walls, ``r / R``: the median over its echoes whose lean
+    could be read, 1 for a scan with fewer than ``min_echoes`` of them, an unplaced one, or slices at one
+    depth (parameters as :func:`correct_for_lobe`).
+
+    Scan matching aligns the echoes of two scans as they are. Where every echo of both falls short of
+    its wall by the same share, ``r = k R``, each scan sees the walls shrunk by ``k`` about its own
+    position, and the rigid displacement between two such views is ``k`` times the true one: a match on
+    leaning walls is short along the line between the two stations by ``(1 − k)`` of its length
+    (:func:`cistern_archive.core.matches.lengthen_matches` undoes it)."""
+    scale = np.ones(len(scans))
+    for k, (_, factor, lean) in enumerate(echo_factors(scans, poses, grids, detection_share, max_lean_deg, reach_m)):
+        known = np.isfinite(lean) if lean is not None else np.zeros(0, bool)
+        if known.sum() >= min_echoes:
+            scale[k] = float(np.median(1.0 / factor[known]))
+    return scale
+

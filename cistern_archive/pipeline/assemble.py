@@ -61,6 +61,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
                                  labels),
             sigma_x_m=sigma[0], sigma_y_m=sigma[1],
             truth_x_m=t.x_m if t else None, truth_y_m=t.y_m if t else None,
+            echo_scale=None if build.echo_scale is None else round(float(build.echo_scale[k]), 4),
         ))
     result.scans = scans
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None

@@ -7,6 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from typing import Any
+
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 
 
@@ -62,3 +64,17 @@ def _match_problem(result: MatchResult) -> str:
     if np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0:
         return "covariance not positive definite"
     return ""
+
+
+def checked_scale(scale: Any, n_scans: int) -> np.ndarray | None:
+    """A mapper's echo scale as an array of ``n_scans`` finite shares in (0, 2], or ``None``; anything else
+    is refused with what is wrong (the runner reports it as the map stage's failure)."""
+    if scale is None:
+        return None
+    values = np.asarray(scale, dtype=float)
+    if values.shape != (n_scans,):
+        raise ValueError(f"echo scale has shape {values.shape}, expected one value per scan ({n_scans})")
+    if not np.all(np.isfinite(values) & (values > 0) & (values <= 2)):
+        raise ValueError(f"echo scale must be finite and within (0, 2], got {values.min()}…{values.max()}")
+    return values
+

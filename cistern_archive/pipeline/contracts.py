@@ -4,7 +4,7 @@ Data flows one way: ``RangeScan`` → :class:`MatchResult` → :class:`Poses` �
 → :class:`DimensionTable`. A stage plugin is an object with a ``name``, a pydantic ``Params`` model
 (``extra="forbid"``) and the method(s) of its :class:`typing.Protocol` below, with their signatures
 (checked at load, :mod:`cistern_archive.pipeline.signatures`). Optional capabilities are protocols of
-their own (:data:`CAPABILITIES`: :class:`GuidedMatcher`, :class:`GuidedLocalizer`). Results are frozen
+their own (:data:`CAPABILITIES`: :class:`GuidedMatcher`, :class:`GuidedLocalizer`, :class:`EchoScaleMapper`). Results are frozen
 dataclasses holding numpy arrays; the runner turns them into the JSON ``SiteResult``.
 
 Conventions
@@ -149,6 +149,23 @@ class Mapper(Protocol):
 
 
 @runtime_checkable
+class EchoScaleMapper(Mapper, Protocol):
+    """Optional capability of a mapper: tell how far each scan's echoes fall short of its walls.
+
+    A sonar's echoes can come back short by a share of their range (a wide vertical beam on leaning
+    walls: :func:`cistern_archive.grid.lobe.echo_scale`), and a match between two such scans is then short
+    by the same share. The runner asks a mapper that implements this (by subclassing the protocol or by
+    defining ``echo_scale``) once the scans are placed, lengthens every match by its two scans' scale and
+    places them again (:func:`cistern_archive.pipeline.runner.localize_step`)."""
+
+    def echo_scale(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams
+                   ) -> np.ndarray | None:  # pragma: no cover - protocol
+        """Each scan's echo range over the range of its walls (1 where they agree), from the map of the
+        scans placed by ``poses``; ``None`` where the mapper cannot tell (e.g. its correction is off)."""
+        ...
+
+
+@runtime_checkable
 class Comparator(Protocol):
     """Measures the reference dimensions in the map."""
 
@@ -171,6 +188,7 @@ class Comparator(Protocol):
 CAPABILITIES: dict[str, tuple[type, ...]] = {
     "matcher": (GuidedMatcher,),
     "localizer": (GuidedLocalizer,),
+    "mapper": (EchoScaleMapper,),
 }
 """The optional capabilities of each stage: protocols a plugin declares by subclassing them."""
 

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from cistern_archive.pipeline.contracts import DimensionTable, MapResult, MatchResult, Poses
@@ -43,6 +44,9 @@ class ScanPose(Model):
     sigma_y_m: float | None = None
     truth_x_m: float | None = None
     truth_y_m: float | None = None
+    echo_scale: float | None = Field(None, description="the scan's echo range over the range of its walls, "
+                                     "by which its matches were lengthened before it was placed (null: not "
+                                     "estimated, as with walls at one depth)")
 
 
 class PairResult(Model):
@@ -185,6 +189,9 @@ class SiteBuild:
     """The input each scan was read from, when the record does not list its scans (a survey's revolutions)."""
     track: TrackComparison | None = None
     """A moving survey's tracks against ground truth."""
+    echo_scale: np.ndarray | None = None
+    """Each scan's echo range over the range of its walls, where the mapper told it and the matches were
+    lengthened by it (:func:`~cistern_archive.pipeline.runner.localize_step`)."""
 
 
 def track_summary(track: TrackComparison) -> TrackSummary:

@@ -26,9 +26,11 @@ from cistern_archive.core.errors import StageError
 from cistern_archive.core.files import write_json_atomic
 from cistern_archive.core.scan import RangeScan, Scan
 from cistern_archive.pipeline.assemble import assemble_result
-from cistern_archive.pipeline.checks import checked_match
+from cistern_archive.core.matches import lengthen_matches
+from cistern_archive.pipeline.checks import checked_match, checked_scale
 from cistern_archive.pipeline.contracts import (
     STAGES,
+    EchoScaleMapper,
     GuidedLocalizer,
     GuidedMatcher,
     MatchGuess,
@@ -269,10 +271,26 @@ def match_step(run: SiteRun) -> None:
 
 
 def localize_step(run: SiteRun) -> None:
-    """Place the scans (:func:`localize`) with the record's vertical ties."""
-    build = run.build
+    """Place the scans (:func:`localize`) with the record's vertical ties. Where the mapper tells that
+    the echoes of placed scans fall short of their walls (an
+    :class:`~cistern_archive.pipeline.contracts.EchoScaleMapper`), every match is lengthened by its two
+    scans' scale (:func:`~cistern_archive.core.matches.lengthen_matches`: matched echoes short by a share
+    of their range make the match short by as much) and the scans are placed again from those matches,
+    which the build keeps (the scans stay as segmented: the mapper corrects each echo for the lean of
+    its own wall)."""
+    build, localizer, mapper, ties = run.build, run.stages["localizer"], run.stages["mapper"], record_ties(run.record)
     build.poses = run_stage("localize", f"{len(build.matches)} matches", lambda: localize(
-        run.stages["localizer"], build.range_scans, build.matches, record_ties(run.record)))
+        localizer, build.range_scans, build.matches, ties))
+    if not mapper.plugin.has(EchoScaleMapper) or not build.poses.placed.any():
+        return
+    scale = run_stage("map", f"echo scale of {int(build.poses.placed.sum())} placed scans", lambda: checked_scale(
+        mapper.instance.echo_scale(build.range_scans, build.poses, mapper.params), len(build.range_scans)))
+    if scale is None or np.all(scale == 1.0):
+        return
+    build.echo_scale = scale
+    build.matches = lengthen_matches(build.matches, scale)
+    build.poses = run_stage("localize", f"{len(build.matches)} matches lengthened by their echo scale",
+                            lambda: localize(localizer, build.range_scans, build.matches, ties))
 
 
 def map_step(run: SiteRun) -> None:

@@ -19,7 +19,7 @@ from typing import Any
 from cistern_archive.core.errors import PluginError
 from cistern_archive.pipeline.contracts import CAPABILITIES, PROTOCOLS
 
-METHODS = ("match", "pairs", "localize", "build", "compare", "guided_pairs")
+METHODS = ("match", "pairs", "localize", "build", "compare", "guided_pairs", "echo_scale")
 """The methods the protocols define (the runner calls no other)."""
 
 _POSITIONAL = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)

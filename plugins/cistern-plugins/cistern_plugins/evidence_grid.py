@@ -8,7 +8,9 @@ the current slice while it lies within ``depth_tolerance_m`` of the one before, 
 floor make one plan); a slice's depth is the mean of its scans' depths.
 Where the slices lie at several depths, the echoes are corrected for the lean of their walls, read from
 these first slices, and fused again (``lobe_*``, :mod:`cistern_archive.grid.lobe`: a tall vertical beam
-hears a leaning wall nearer than it is).
+hears a leaning wall nearer than it is). The mapper tells the runner by how much each scan's echoes fall
+short there (:meth:`EvidenceGridMapper.echo_scale`, the ``EchoScaleMapper`` capability), so that the
+matches between them, short by as much, are lengthened before the scans are placed for good.
 
 Storage: the fused grid lives in fixed-size tiles allocated on touch (the paper used an octree); the
 dense :class:`~cistern_archive.pipeline.contracts.EvidenceGrid` handed on is the non-zero bounding box
@@ -25,9 +27,9 @@ from pydantic import Field
 
 from cistern_archive.core.levels import depth_levels
 from cistern_archive.grid.evidence import SonarModel, scan_window
-from cistern_archive.grid.lobe import correct_for_lobe
+from cistern_archive.grid.lobe import SAME_LEVEL_M, correct_for_lobe, echo_scale
 from cistern_archive.grid.tiles import TiledGrid
-from cistern_archive.pipeline.contracts import EvidenceGrid, MapResult, Poses, StageParams
+from cistern_archive.pipeline.contracts import EchoScaleMapper, EvidenceGrid, MapResult, Poses, StageParams
 from cistern_archive.core.scan import RangeScan
 
 
@@ -56,7 +58,7 @@ class GridParams(StageParams):
                                 "is not its wall")
 
 
-class EvidenceGridMapper:
+class EvidenceGridMapper(EchoScaleMapper):
     """Log-odds evidence-grid mapper (``evidence-grid``)."""
 
     name: ClassVar[str] = "evidence-grid"
@@ -78,6 +80,17 @@ class EvidenceGridMapper:
         stats = {**final.stats, "lobe_corrected_echoes": float(leans.size),
                  "lobe_median_lean_deg": float(np.median(leans))}
         return MapResult(grids=final.grids, stats=stats)
+
+    def echo_scale(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams) -> np.ndarray | None:
+        """Each scan's echo range over the range of its leaning walls, read from the first slices as
+        :meth:`build` reads the leans (:func:`cistern_archive.grid.lobe.echo_scale`); ``None`` with
+        ``lobe_correction`` off or the placed scans at one depth."""
+        p = GridParams.of(params)
+        depths = [scan.depth_m for scan, placed in zip(scans, poses.placed) if placed]
+        if not p.lobe_correction or not depths or np.ptp(depths) < SAME_LEVEL_M:
+            return None
+        return echo_scale(scans, poses, self.fuse(scans, poses, p).grids, p.lobe_detection_share,
+                          p.lobe_max_lean_deg, p.lobe_reach_m)
 
     @staticmethod
     def fuse(scans: Sequence[RangeScan], poses: Poses, p: GridParams) -> MapResult:
