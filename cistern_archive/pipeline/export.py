@@ -221,11 +221,13 @@ def pairs_table(result: SiteResult) -> tuple[list[str], list[list[Any]]]:
 
 
 def scans_table(result: SiteResult) -> tuple[list[str], list[list[Any]]]:
-    """Every scan, placed or not: position, its standard deviations, heading and depth."""
+    """Every scan, placed or not: position, its standard deviations, heading and depth, the reason it is
+    unplaced and its echo scale (:attr:`~cistern_archive.pipeline.results.ScanPose.echo_scale`, empty where
+    none was estimated)."""
     header = ["index", "station", "file", "placed", "x_m", "y_m", "sigma_x_m", "sigma_y_m", "yaw_rad",
-              "heading_deg", "depth_m", "reason"]
+              "heading_deg", "depth_m", "reason", "echo_scale"]
     rows = [[s.index, s.id, s.file, s.placed, s.x_m, s.y_m, s.sigma_x_m, s.sigma_y_m, s.yaw_rad,
-             compass_deg_from_yaw(s.yaw_rad), s.depth_m, s.reason] for s in result.scans]
+             compass_deg_from_yaw(s.yaw_rad), s.depth_m, s.reason, s.echo_scale] for s in result.scans]
     return header, rows
 
 

@@ -175,6 +175,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
               "figure": (p.i, p.j) in pair_anchor, "anchor": pair_anchor.get((p.i, p.j), "")}
              for p in sorted(result.pairs, key=lambda p: (p.i, p.j))]
     has_truth = any(s.truth_x_m is not None for s in result.scans)
+    has_scale = any(s.echo_scale is not None for s in result.scans)
     errors = scan_position_errors(result)
     placed = []
     for k, s in enumerate(result.scans):
@@ -184,7 +185,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         placed.append({"id": s.id, "file": s.file, "x": signed(s.x_m), "y": signed(s.y_m),
                        "sx": number(s.sigma_x_m), "sy": number(s.sigma_y_m),
                        "heading": number(compass_deg_from_yaw(s.yaw_rad), 1), "depth": number(s.depth_m, 2),
-                       "error": number(error)})
+                       "error": number(error), "scale": number(s.echo_scale, 3)})
     unplaced = [{"id": s.id, "file": s.file, "reason": s.reason or "not reached"} for s in result.scans if not s.placed]
     provenance = result.provenance
     plugins = [] if provenance is None else [
@@ -227,6 +228,7 @@ def page_context(build: SiteBuild, labels: list[str], drawn: dict[str, Any], mod
         "placed": placed,
         "unplaced": unplaced,
         "has_truth": has_truth,
+        "has_scale": has_scale,
         "plugins": plugins,
         "seeds": seeds,
         "downloads": downloads,
