@@ -224,7 +224,9 @@ def pair_figures(
             "Like Fig. 6 of the paper, each panel is in the reference station's frame, north up, with its own "
             "scale bar: grey, the reference scan's echoes (its map m_i); yellow star, the reference station; "
             "dots, the moving station's particles from early (faint) to last, green to white as their weight "
-            "grows; red cross, the estimate; cyan ring, the true position when the site is simulated. "
+            "grows; red cross, the estimate (lengthened by the two scans' echo scale where the scan table "
+            "gives one, so it lies beyond the particles' last place); cyan ring, the true position when the "
+            "site is simulated. "
             "Magenta titles did not converge."), chunk))
     return out
 
