@@ -17,8 +17,11 @@ Usage::
 correction for leaning walls should change nothing.
 
 The last line of ``--json`` is ``{"seed", "sites", "median_surface_m", "p95_surface_m",
-"outside_area_fraction", "dimension_bias_m", "dimension_abs_m", "dimensions", "covered", ...}``: medians
-over the sites of each site's figure, and the dimensions' mean signed and mean absolute error.
+"outside_area_fraction", "dimension_bias_m", "dimension_abs_m", "dimensions", "covered", "pairs_ge50",
+"pairs_ge50_ok", "false_convergences", "median_aligned_error_m", "max_aligned_error_m", ...}``: medians
+over the sites of each model figure, the dimensions' mean signed and mean absolute error, the pairs with
+≥ 50 % overlap and those within 0.10 m, the converged pairs more than 0.10 m off (as
+``benchmarks/sites.py`` counts them), and the aligned errors of every placed scan of every site.
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ def summary(rows: list[dict]) -> dict:
     """Medians over the sites, and the dimensions' errors pooled."""
     scored = [r for r in rows if r["median_surface_m"] is not None]
     dims = [d for r in rows for d in r["dimensions"]]
+    aligned = [e for r in rows for e in r["aligned_errors_m"]]
     out = {"sites": len(rows), "meshed": len(scored),
            **{k: statistics.median(r[k] for r in scored) if scored else None for k in MODEL_KEYS},
            "dimensions": len(dims), "covered": sum(d["covered"] for d in dims),
@@ -77,8 +81,8 @@ def summary(rows: list[dict]) -> dict:
            "dimension_abs_m": statistics.fmean(abs(d["error_m"]) for d in dims) if dims else None,
            "placed": sum(r["placed"] for r in rows), "scans": sum(r["scans"] for r in rows),
            **{k: sum(r[k] for r in rows) for k in ("pairs_ge50", "pairs_ge50_ok", "false_convergences")},
-           "median_aligned_error_m": statistics.median(e for r in rows for e in r["aligned_errors_m"]),
-           "max_aligned_error_m": max(e for r in rows for e in r["aligned_errors_m"])}
+           "median_aligned_error_m": statistics.median(aligned) if aligned else None,
+           "max_aligned_error_m": max(aligned) if aligned else None}
     return out
 
 

@@ -167,4 +167,3 @@ def echo_scale(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[Evidenc
         if known.sum() >= min_echoes:
             scale[k] = float(np.median(1.0 / factor[known]))
     return scale
-

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
-
-from typing import Any
 
 from cistern_archive.pipeline.contracts import MatchGuess, MatchResult
 
@@ -77,4 +76,3 @@ def checked_scale(scale: Any, n_scans: int) -> np.ndarray | None:
     if not np.all(np.isfinite(values) & (values > 0) & (values <= 2)):
         raise ValueError(f"echo scale must be finite and within (0, 2], got {values.min()}…{values.max()}")
     return values
-

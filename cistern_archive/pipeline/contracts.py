@@ -4,8 +4,9 @@ Data flows one way: ``RangeScan`` → :class:`MatchResult` → :class:`Poses` �
 → :class:`DimensionTable`. A stage plugin is an object with a ``name``, a pydantic ``Params`` model
 (``extra="forbid"``) and the method(s) of its :class:`typing.Protocol` below, with their signatures
 (checked at load, :mod:`cistern_archive.pipeline.signatures`). Optional capabilities are protocols of
-their own (:data:`CAPABILITIES`: :class:`GuidedMatcher`, :class:`GuidedLocalizer`, :class:`EchoScaleMapper`). Results are frozen
-dataclasses holding numpy arrays; the runner turns them into the JSON ``SiteResult``.
+their own (:data:`CAPABILITIES`: :class:`GuidedMatcher`, :class:`GuidedLocalizer`,
+:class:`EchoScaleMapper`). Results are frozen dataclasses holding numpy arrays; the runner turns them
+into the JSON ``SiteResult``.
 
 Conventions
 -----------

@@ -24,9 +24,9 @@ from cistern_archive.catalog.loader import LoadedRecord
 from cistern_archive.catalog.models import ScanRef, Segmentation, SiteRecord
 from cistern_archive.core.errors import StageError
 from cistern_archive.core.files import write_json_atomic
+from cistern_archive.core.matches import lengthen_matches
 from cistern_archive.core.scan import RangeScan, Scan
 from cistern_archive.pipeline.assemble import assemble_result
-from cistern_archive.core.matches import lengthen_matches
 from cistern_archive.pipeline.checks import checked_match, checked_scale
 from cistern_archive.pipeline.contracts import (
     STAGES,
