@@ -56,6 +56,9 @@ class GridParams(StageParams):
     lobe_max_lean_deg: float = Field(60.0, gt=0, lt=80, description="leans read from the slices are capped here")
     lobe_reach_m: float = Field(1.5, gt=0, description="another slice's wall farther than this from an echo "
                                 "is not its wall")
+    lobe_lengthen_matches: bool = Field(True, description="tell the runner each scan's echo scale on leaning "
+                                        "walls, by which it lengthens the matches before placing the scans "
+                                        "again (EchoScaleMapper; needs lobe_correction)")
 
 
 class EvidenceGridMapper(EchoScaleMapper):
@@ -84,10 +87,10 @@ class EvidenceGridMapper(EchoScaleMapper):
     def echo_scale(self, scans: Sequence[RangeScan], poses: Poses, params: StageParams) -> np.ndarray | None:
         """Each scan's echo range over the range of its leaning walls, read from the first slices as
         :meth:`build` reads the leans (:func:`cistern_archive.grid.lobe.echo_scale`); ``None`` with
-        ``lobe_correction`` off or the placed scans at one depth."""
+        ``lobe_correction`` or ``lobe_lengthen_matches`` off, or the placed scans at one depth."""
         p = GridParams.of(params)
         depths = [scan.depth_m for scan, placed in zip(scans, poses.placed) if placed]
-        if not p.lobe_correction or not depths or np.ptp(depths) < SAME_LEVEL_M:
+        if not (p.lobe_correction and p.lobe_lengthen_matches) or not depths or np.ptp(depths) < SAME_LEVEL_M:
             return None
         return echo_scale(scans, poses, self.fuse(scans, poses, p).grids, p.lobe_detection_share,
                           p.lobe_max_lean_deg, p.lobe_reach_m)
