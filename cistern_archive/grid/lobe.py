@@ -163,7 +163,7 @@ def echo_scale(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[Evidenc
     (:func:`cistern_archive.core.matches.lengthen_matches` undoes it)."""
     scale = np.ones(len(scans))
     for k, (_, factor, lean) in enumerate(echo_factors(scans, poses, grids, detection_share, max_lean_deg, reach_m)):
-        known = np.isfinite(lean) if lean is not None else np.zeros(0, bool)
-        if known.sum() >= min_echoes:
+        known = np.isfinite(lean) if lean is not None else None
+        if known is not None and known.sum() >= min_echoes:
             scale[k] = float(np.median(1.0 / factor[known]))
     return scale
