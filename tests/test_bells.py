@@ -58,3 +58,13 @@ def test_matches_lengthened_by_the_echo_scale_are_nearer_the_truth():
     assert on["pairs_ge50_ok"] >= off["pairs_ge50_ok"] + 2
     assert on["false_convergences"] <= off["false_convergences"] - 2
     assert on["placed"] == off["placed"] == on["scans"]
+
+
+@pytest.mark.slow
+def test_echoes_averaged_along_the_leaning_walls_bring_the_models_to_them():
+    """A leaning wall's smeared echoes scatter along it and the water ends at the longest; averaged along
+    the wall (the ``evidence-grid`` mapper's ``lobe_smooth_deg``) the models lie nearer the true walls
+    (three generated bells, seed 12: median 0.035 → 0.022 m, p95 0.071 → 0.056 m when measured)."""
+    apart, averaged = run_bells('{"lobe_smooth_deg": 0}'), run_bells("{}")
+    assert averaged["median_surface_m"] < 0.8 * apart["median_surface_m"]
+    assert averaged["p95_surface_m"] < apart["p95_surface_m"]

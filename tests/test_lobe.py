@@ -10,7 +10,7 @@ from numpy.testing import assert_allclose
 
 from cistern_archive.core.matches import MatchResult, lengthen_matches
 from cistern_archive.core.poses import Poses
-from cistern_archive.grid.lobe import range_factor, slope_at_zero
+from cistern_archive.grid.lobe import range_factor, slope_at_zero, smooth_along_wall
 from cistern_archive.grid.polygon import polygon_scan, rectangle
 from cistern_plugins.evidence_grid import EvidenceGridMapper, GridParams
 
@@ -128,3 +128,44 @@ def test_the_correction_scales_with_the_vertical_beam():
     moved = [wall_radius(a) - wall_radius(b) for a, b in zip(wide.grids, plain.grids)]
     barely = [wall_radius(a) - wall_radius(b) for a, b in zip(thin.grids, plain.grids)]
     assert min(moved) > 0.05 and max(abs(m) for m in barely) < 0.3 * min(moved)
+
+
+def test_echoes_on_a_leaning_wall_are_averaged_along_it_and_no_others():
+    rng = np.random.default_rng(3)
+    bearings = np.radians(np.arange(360.0))
+    ranges = 2.0 + rng.normal(0.0, 0.1, 360)
+    ranges[90:100] = 3.0  # another wall behind an opening
+    lean = np.full(360, math.radians(40.0))
+    lean[180:200] = math.radians(4.0)  # a vertical stretch: its echoes are sharp
+    lean[300:305] = np.nan  # lean unknown
+    smooth = smooth_along_wall(ranges, lean, bearings, math.radians(7.0))
+    leaning = np.ones(360, bool)
+    leaning[90:100] = leaning[180:200] = leaning[300:305] = False
+    assert np.std(smooth[leaning] - 2.0) < 0.5 * np.std(ranges[leaning] - 2.0)
+    assert_allclose(smooth[90:100], 3.0)  # averaged with the far wall's echoes only
+    assert np.array_equal(smooth[180:200], ranges[180:200]) and np.array_equal(smooth[300:305], ranges[300:305])
+    assert np.array_equal(smooth_along_wall(ranges, lean, bearings, 0.0), ranges)
+
+
+def water_beyond(grid, radius: float, margin: float = 0.1) -> int:
+    """Cells a slice holds as water more than ``margin`` beyond a round room's wall."""
+    rows, cols = np.nonzero(grid.probability() < 0.4)
+    x = grid.origin_xy_m[0] + (cols + 0.5) * grid.cell_m
+    y = grid.origin_xy_m[1] + (rows + 0.5) * grid.cell_m
+    return int(np.sum(np.hypot(x, y) > radius + margin))
+
+
+def test_scattered_echoes_on_a_leaning_wall_do_not_carry_the_water_past_it():
+    """The smeared echoes of a leaning wall scatter along it; averaged along the wall, the longest of
+    them no longer carry the slice's water into the rock."""
+    scans, poses = cone_scans()
+    rng = np.random.default_rng(5)
+    scattered = [dataclasses.replace(s, ranges_m=s.ranges_m + rng.normal(0.0, 0.12, s.ranges_m.shape)) for s in scans]
+    mapper = EvidenceGridMapper()
+    apart = mapper.build(scattered, poses, GridParams(lobe_smooth_deg=0.0))
+    averaged = mapper.build(scattered, poses, GridParams())
+    leak_apart = sum(water_beyond(g, cone_radius(g.depth_m)) for g in apart.grids)
+    leak_averaged = sum(water_beyond(g, cone_radius(g.depth_m)) for g in averaged.grids)
+    assert leak_averaged < 0.3 * leak_apart
+    assert_allclose([wall_radius(g) for g in averaged.grids], [cone_radius(g.depth_m) for g in averaged.grids],
+                    atol=0.04)

@@ -21,6 +21,15 @@ by a parabola through this slice and the two nearest others (a straight line wit
 slope at the slice's depth is ``tan α``. Where another slice's wall lies farther than ``reach_m`` from
 the echo (not the same wall, or not seen) the echo is not corrected; the lean is capped at
 ``max_lean_deg``. One depth slice: nothing changes.
+
+A leaning wall's echo is smeared over the slant ranges of the whole lobe, and where its peak forms
+within the smear varies from ping to ping: on the bell the ranges scatter with an interquartile range of
+0.17–0.23 m against 0.03 m on vertical walls (``benchmarks/RESULTS.md``, "2026-12-05 (session 2)").
+The water each slice sees ends at the longest of its echoes, so that scatter pushes the walls out in
+places and pulls them in elsewhere. Each corrected echo on a wall leaning more than ``SMOOTH_MIN_LEAN_DEG``
+is therefore replaced by the mean of the corrected echoes of its scan within a few degrees of bearing
+that hear the same wall (:func:`smooth_along_wall`), as a wall is continuous over the few centimetres
+between neighbouring beams where the scatter is not.
 """
 
 from __future__ import annotations
@@ -38,6 +47,13 @@ from cistern_archive.grid.surface import SurfaceParams, signed_distance, slice_w
 
 SAME_LEVEL_M = 0.3
 """Slices closer in depth than this are one depth level."""
+
+SMOOTH_MIN_LEAN_DEG = 10.0
+"""Echoes on walls leaning less than this are not smoothed (:func:`smooth_along_wall`): there the echo is
+sharp, and the leans read on vertical walls are noise below it."""
+
+SAME_WALL_M = 0.3
+"""Neighbouring echoes whose ranges differ by more than this hear another wall (:func:`smooth_along_wall`)."""
 
 MIN_SCALE_ECHOES = 20
 """A scan's echo scale (:func:`echo_scale`) is read from at least this many echoes with a known lean."""
@@ -102,8 +118,28 @@ def echo_lean(scan: RangeScan, xy_m: np.ndarray, yaw_rad: float, lattice: Eviden
     return lean
 
 
+def smooth_along_wall(ranges_m: np.ndarray, lean_rad: np.ndarray, bearings_rad: np.ndarray, window_rad: float,
+                      min_lean_rad: float = math.radians(SMOOTH_MIN_LEAN_DEG), same_wall_m: float = SAME_WALL_M
+                      ) -> np.ndarray:
+    """Each echo on a wall leaning at least ``min_lean_rad`` replaced by the mean range of the echoes on
+    such walls within ``window_rad`` of its bearing (either side, across north) whose ranges lie within
+    ``same_wall_m`` of its own; every other beam, and everything with ``window_rad`` 0, as it was."""
+    ranges = np.asarray(ranges_m, dtype=float)
+    leaning = np.isfinite(ranges) & (np.nan_to_num(np.asarray(lean_rad, dtype=float)) >= min_lean_rad)
+    if window_rad <= 0 or not leaning.any():
+        return ranges
+    idx = np.flatnonzero(leaning)
+    r, b = ranges[idx], np.asarray(bearings_rad, dtype=float)[idx]
+    apart = np.abs(np.angle(np.exp(1j * (b[:, None] - b[None, :]))))
+    together = (apart <= window_rad) & (np.abs(r[:, None] - r[None, :]) < same_wall_m)
+    out = ranges.copy()
+    out[idx] = together @ r / together.sum(axis=1)
+    return out
+
+
 def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[EvidenceGrid],
-                     detection_share: float, max_lean_deg: float, reach_m: float) -> tuple[list[RangeScan], np.ndarray]:
+                     detection_share: float, max_lean_deg: float, reach_m: float, smooth_deg: float = 0.0
+                     ) -> tuple[list[RangeScan], np.ndarray]:
     """Every placed scan with its echo ranges corrected for the lean of their walls (module docstring).
 
     Parameters
@@ -114,6 +150,8 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
         a share of the half width of each scan's vertical beam.
     max_lean_deg : the lean is capped here.
     reach_m : other slices' walls farther than this from an echo are not its wall.
+    smooth_deg : the corrected echoes on leaning walls are averaged over this many degrees of bearing
+        either side (:func:`smooth_along_wall`); 0 leaves them apart.
 
     Returns
     -------
@@ -123,7 +161,11 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
     """
     out, leans = [], []
     for scan, factor, lean in echo_factors(scans, poses, grids, detection_share, max_lean_deg, reach_m):
-        out.append(scan if factor is None else dataclasses.replace(scan, ranges_m=scan.ranges_m * factor))
+        if factor is None:
+            out.append(scan)
+            continue
+        ranges = smooth_along_wall(scan.ranges_m * factor, lean, scan.bearings_rad, math.radians(smooth_deg))
+        out.append(dataclasses.replace(scan, ranges_m=ranges))
         if lean is not None:
             leans.append(np.degrees(lean[np.isfinite(lean)]))
     return out, np.concatenate(leans) if leans else np.zeros(0)

@@ -56,6 +56,9 @@ class GridParams(StageParams):
     lobe_max_lean_deg: float = Field(60.0, gt=0, lt=80, description="leans read from the slices are capped here")
     lobe_reach_m: float = Field(1.5, gt=0, description="another slice's wall farther than this from an echo "
                                 "is not its wall")
+    lobe_smooth_deg: float = Field(7.0, ge=0, le=45, description="corrected echoes on walls leaning 10° or "
+                                   "more are averaged with those of their scan within this many degrees of "
+                                   "bearing either side that hear the same wall (0: not averaged)")
     lobe_lengthen_matches: bool = Field(True, description="tell the runner each scan's echo scale on leaning "
                                         "walls, by which it lengthens the matches before placing the scans "
                                         "again (EchoScaleMapper; needs lobe_correction)")
@@ -76,7 +79,7 @@ class EvidenceGridMapper(EchoScaleMapper):
         if not p.lobe_correction:
             return first
         corrected, leans = correct_for_lobe(scans, poses, first.grids, p.lobe_detection_share, p.lobe_max_lean_deg,
-                                            p.lobe_reach_m)
+                                            p.lobe_reach_m, p.lobe_smooth_deg)
         if not leans.size:
             return first
         final = self.fuse(corrected, poses, p)
