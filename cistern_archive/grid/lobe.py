@@ -55,6 +55,9 @@ sharp, and the leans read on vertical walls are noise below it."""
 SAME_WALL_M = 0.3
 """Neighbouring echoes whose ranges differ by more than this hear another wall (:func:`smooth_along_wall`)."""
 
+SMOOTH_ROWS = 256
+"""Echoes averaged at a time by :func:`smooth_along_wall`."""
+
 MIN_SCALE_ECHOES = 20
 """A scan's echo scale (:func:`echo_scale`) is read from at least this many echoes with a known lean."""
 
@@ -130,10 +133,12 @@ def smooth_along_wall(ranges_m: np.ndarray, lean_rad: np.ndarray, bearings_rad: 
         return ranges
     idx = np.flatnonzero(leaning)
     r, b = ranges[idx], np.asarray(bearings_rad, dtype=float)[idx]
-    apart = np.abs(np.angle(np.exp(1j * (b[:, None] - b[None, :]))))
-    together = (apart <= window_rad) & (np.abs(r[:, None] - r[None, :]) < same_wall_m)
     out = ranges.copy()
-    out[idx] = together @ r / together.sum(axis=1)
+    for start in range(0, idx.size, SMOOTH_ROWS):  # rows at a time: memory grows with the beams, not their square
+        rows = slice(start, start + SMOOTH_ROWS)
+        apart = np.abs(np.angle(np.exp(1j * (b[rows, None] - b[None, :]))))
+        together = ((apart <= window_rad) & (np.abs(r[rows, None] - r[None, :]) < same_wall_m)).astype(float)
+        out[idx[rows]] = together @ r / together.sum(axis=1)
     return out
 
 
