@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -31,6 +32,8 @@ from cistern_archive.report.files import save_figure
 GRID_CMAP = "gray_r"
 MANY_STATIONS = 50
 """Above this many placed stations the map draws them as small dots."""
+LABEL_HALO = [patheffects.withStroke(linewidth=2.5, foreground="white")]
+"""A white outline around the station labels, so that they read over walls, links and markers."""
 STATION_SPAN_M = 0.2
 """Placed stations spread over this much depth or more: the map's title and caption name their depths."""
 DIMENSION_COLOURS = ("#e66101", "#5e3c99", "#1a9641", "#d7191c", "#2b83ba", "#a6611a")
@@ -123,8 +126,8 @@ def map_figure(
         named = [k for q, k in enumerate(placed) if q % label_every == 0 or q == len(placed) - 1]
         for xy_k, text in stacked_labels(poses.xy_m[named], [labels[k] for k in named],
                                          tolerance_m=0.015 * max(abs(x1 - x0), 1.0)):
-            ax.annotate(text, xy_k, xytext=(6, 6), textcoords="offset points", fontsize=9,
-                        color="#08306b", fontweight="bold", zorder=5)
+            ax.annotate(text, xy_k, xytext=(8, 6), textcoords="offset points", fontsize=9,
+                        color="#08306b", fontweight="bold", zorder=5, path_effects=LABEL_HALO)
     handles = [Line2D([], [], color=LINK_OK, lw=2.5, label="converged match"),
                Line2D([], [], color=LINK_BAD, lw=1.5, ls="--", label="not converged"),
                *([Line2D([], [], color=LINK_FIT, lw=2.5, ls=":", label="groups fitted as wholes")] if fitted else []),
