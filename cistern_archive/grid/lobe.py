@@ -26,7 +26,7 @@ A leaning wall's echo is smeared over the slant ranges of the whole lobe, and wh
 within the smear varies from ping to ping: on the bell the ranges scatter with an interquartile range of
 0.17–0.23 m against 0.03 m on vertical walls (``benchmarks/RESULTS.md``, "2026-12-05 (session 2)").
 The water each slice sees ends at the longest of its echoes, so that scatter pushes the walls out in
-places and pulls them in elsewhere. Each corrected echo on a wall leaning more than ``SMOOTH_MIN_LEAN_DEG``
+places and pulls them in elsewhere. Each corrected echo on a wall leaning ``SMOOTH_MIN_LEAN_DEG`` or more
 is therefore replaced by the mean of the corrected echoes of its scan within a few degrees of bearing
 that hear the same wall (:func:`smooth_along_wall`), as a wall is continuous over the few centimetres
 between neighbouring beams where the scatter is not.
