@@ -171,8 +171,7 @@ def correct_for_lobe(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[E
             continue
         ranges = smooth_along_wall(scan.ranges_m * factor, lean, scan.bearings_rad, math.radians(smooth_deg))
         out.append(dataclasses.replace(scan, ranges_m=ranges))
-        if lean is not None:
-            leans.append(np.degrees(lean[np.isfinite(lean)]))
+        leans.append(np.degrees(lean[np.isfinite(lean)]))
     return out, np.concatenate(leans) if leans else np.zeros(0)
 
 
@@ -210,7 +209,9 @@ def echo_scale(scans: Sequence[RangeScan], poses: Poses, grids: Sequence[Evidenc
     (:func:`cistern_archive.core.matches.lengthen_matches` undoes it)."""
     scale = np.ones(len(scans))
     for k, (_, factor, lean) in enumerate(echo_factors(scans, poses, grids, detection_share, max_lean_deg, reach_m)):
-        known = np.isfinite(lean) if lean is not None else None
-        if known is not None and known.sum() >= min_echoes:
+        if lean is None:
+            continue
+        known = np.isfinite(lean)
+        if known.sum() >= min_echoes:
             scale[k] = float(np.median(1.0 / factor[known]))
     return scale
