@@ -9,11 +9,12 @@ import math
 import numpy as np
 import pytest
 
+import cistern_plugins.group_clouds as group_clouds
 import cistern_plugins.site_groups as site_groups
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_archive.pipeline.contracts import MatchResult
 from cistern_plugins.alignment import scan_points
-from cistern_plugins.group_clouds import TRACE_GAP_M, Cloud, wall_spread, wall_trace
+from cistern_plugins.group_clouds import TRACE_GAP_M, Cloud, facing_normals, wall_ends, wall_spread, wall_trace
 from cistern_plugins.group_fit import (MAX_SIGMA, SCORE_TEMPERATURE, GroupFit, GroupFitSettings, accept, fit_groups,
                                       outlying_spread, profile_sigma, score_covariance)
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
@@ -315,6 +316,50 @@ def test_a_station_inside_the_tunnel_joins_the_chambers_on_either_side():
     apart = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_passages=False))
     assert apart.placed.tolist() == [True] * 3 + [False] * 4
 
+
+# The west chamber of SITE and a tunnel 3 m long to an east chamber.
+LONG_TUNNEL = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 1.5], [8.0, 1.5], [8.0, -0.5], [11.5, -0.5], [13.0, 1.0],
+                        [13.0, 4.5], [8.0, 4.5], [8.0, 2.5], [5.0, 2.5], [5.0, 4.0], [0.0, 4.0]])
+LONG_EAST = [(9.2, 2.0), (11.5, 0.8), (11.8, 3.6)]
+
+
+def test_a_wall_is_traced_past_its_last_echo_only_where_the_next_beam_passed_its_end():
+    """In a closed room every wall's last echo meets the next wall (at most a stray cell at a corner);
+    the tunnel's north wall, seen from the west chamber's south-west corner, ends at the far mouth, where
+    the next beams pass on into the east chamber: traced on from its last echo (short of the mouth) by
+    up to 0.3 m."""
+    room = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]])
+    for station in [(2.0, 1.5), (0.7, 0.6), (3.5, 2.5)]:
+        scan = polygon_scan([room], station, 0.3, rng=np.random.default_rng(0), n_beams=400, max_range_m=6.0)
+        points = scan_points(scan)
+        assert len(wall_ends(scan, points, facing_normals(points))[0]) <= 2
+    scan = polygon_scan([LONG_TUNNEL], WEST[0], 0.0, rng=np.random.default_rng(0), n_beams=400, max_range_m=8.0)
+    points = scan_points(scan)
+    last = (points + WEST[0])[np.abs(points[:, 1] + WEST[0][1] - 2.5) < 0.01, 0].max()
+    ends = wall_ends(scan, points, facing_normals(points))[0] + WEST[0]
+    traced = ends[(np.abs(ends[:, 1] - 2.5) < 0.01) & (ends[:, 0] > 7.0), 0]
+    assert last < 8.0 and len(traced) >= 3 and last < traced.min() and traced.max() <= last + 0.3
+
+def test_walls_traced_past_their_last_echo_keep_a_join_down_a_long_tunnel_from_falling_short(monkeypatch):
+    """Each chamber's stations see the 3 m tunnel's walls end to end, at grazing incidence towards its far
+    mouth, where their echoes lie 0.4 m apart: traced only to the last echo, each group's tunnel falls
+    short at the far end and the fit pulls the east chamber 0.17 m towards the west one. Traced on halfway
+    to the next beam, the join is within 0.03 m."""
+    def join_error():
+        rng = np.random.default_rng(0)
+        clouds = []
+        for positions in (WEST, LONG_EAST):
+            scans = [polygon_scan([LONG_TUNNEL], p, 0.0, rng=rng, n_beams=400, max_range_m=8.0) for p in positions]
+            origin = np.asarray(positions[0])
+            clouds.append(Cloud(scans, [np.array([*(np.asarray(p) - origin), 0.0]) for p in positions]))
+        fit = fit_groups(*clouds, GroupFitSettings())
+        assert accept(fit, GroupFitSettings()) == ""
+        return fit.pose[:2] - (np.asarray(LONG_EAST[0]) - np.asarray(WEST[0]))
+
+    error = join_error()
+    assert abs(error[0]) < 0.04 and abs(error[1]) < 0.01
+    monkeypatch.setattr(group_clouds, "WALL_END_REACH_M", 0.0)
+    assert join_error()[0] < -0.12
 
 # Two chambers of one shape, 4 m x 3 m, side by side: the west one's mouth in its east wall, the east
 # one's in its west wall, joined by a tunnel 1 m wide and 1.5 m long.

@@ -31,6 +31,13 @@ TRACE_GAP_M = 0.3
 """Echoes of consecutive beams this close are one wall, traced between them (:func:`wall_trace`); so
 are echoes farther apart that one wall met at up to ``90° - GRAZING_DEG`` of incidence gives
 (``r * step / sin(GRAZING_DEG)``). An opening's jamb and the wall seen through it lie metres apart."""
+WALL_END_REACH_M = 0.3
+"""The farthest a wall is traced past its last echo (:func:`wall_ends`); 0 traces none."""
+WALL_END_GAP_M = 1.0
+"""A wall whose next beam would have met it farther than this past its last echo is not traced on: at
+such grazing incidence its end is unknown."""
+ON_WALL_M = 0.1
+"""An echo lies on the wall of its beam-order neighbour when it is this close to that wall's line."""
 TRACE_SPACING_M = 0.05
 """Points are laid at most this far apart along a traced wall: the refinement's cells, and the spacing
 of echoes 3 m off at 0.9° steps. Not closer: a line sampled densely also covers the cells it only
@@ -45,7 +52,10 @@ class Cloud:
         self.frees: list[tuple[FreeSpace, np.ndarray]] = []
         for scan, pose in zip(scans, poses):
             p = scan_points(scan)
-            p, n = wall_trace(p, facing_normals(p))
+            n = facing_normals(p)
+            ends, end_normals = wall_ends(scan, p, n)
+            p, n = wall_trace(p, n)
+            p, n = np.vstack([p, ends]), np.vstack([n, end_normals])
             points.append(transform(p, pose))
             normals.append(rotate(n, pose[2]) if len(n) else n)
             free = FreeSpace(silent_water(scan, math.radians(OPEN_SECTOR_DEG)))
@@ -112,6 +122,57 @@ def wall_trace(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.
     blend = (1 - t)[:, None] * normals[seg] + t[:, None] * normals[seg + 1]
     blend /= np.maximum(np.hypot(blend[:, 0], blend[:, 1]), 1e-9)[:, None]
     return np.vstack([points, filled]), np.vstack([normals, blend])
+
+
+def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each wall a scan heard traced on past its last echo, halfway to where the next beam would have met
+    it, every :data:`TRACE_SPACING_M` (at most :data:`WALL_END_REACH_M`), with its normal.
+
+    Where a wall ends (the jamb of an opening, the corner of a pillar, a tunnel's mouth seen down its
+    length), the next beam passes beyond it: the wall ends somewhere between the last echo and that beam's
+    crossing of the wall's line, a gap of ``r * step / sin(incidence)``. Traced only to the last echo,
+    every end falls short by half that gap on average, most where the wall is met obliquely: a tunnel
+    seen from the chamber at its mouth, whose far mouth both groups of a join see from opposite ends.
+    Their fit, which scores how much wall the two lay on each other, then pulls them together by as
+    much (0.17 m for a 3 m tunnel at 0.9° steps; joins on the random cisterns were a median 0.07 m short
+    along the line between their stations, RESULTS.md "2026-12-06 (session 20)"). An end is traced only
+    where the echo lies on a wall of two echoes or more (a lone echo may be a ghost or a spike), the next
+    beam heard nothing or something beyond the wall's line (not a wall in front of it, which hides
+    where this one goes on), and the gap is at most :data:`WALL_END_GAP_M`. ``points`` (beam order, as
+    :func:`~cistern_plugins.alignment.scan_points` gives them) and their ``normals`` are relative to the
+    sonar."""
+    valid = np.flatnonzero(scan.valid)
+    none = np.zeros((0, 2)), np.zeros((0, 2))
+    if len(valid) < 2 or WALL_END_REACH_M <= 0:
+        return none
+    bearings = scan.bearings_rad
+    step = float(np.median(np.abs(np.angle(np.exp(1j * np.diff(bearings))))))
+    heard = np.full(len(bearings), np.nan)
+    heard[valid] = scan.ranges_m[valid]
+    out_p, out_n = [], []
+    for row, k in enumerate(valid):
+        p, n = points[row], normals[row]
+        for m, back in ((k - 1, row + 1), ((k + 1) % len(bearings), row - 1)):
+            if abs(np.angle(np.exp(1j * (bearings[m] - bearings[k])))) > 1.5 * step:
+                continue  # the edge of a sector, not a neighbour
+            chord = points[back % len(points)] - p
+            if abs(float(n @ chord)) > ON_WALL_M or float(np.hypot(*chord)) > WALL_END_GAP_M:
+                continue  # no wall of two echoes ends here
+            angle = bearings[m] + scan.yaw_rad
+            u = np.array([math.cos(angle), math.sin(angle)])
+            if float(n @ u) >= 0:
+                continue  # the next beam runs away from the wall's face
+            t = float(n @ p) / float(n @ u)
+            gap = float(np.hypot(*(t * u - p)))
+            if heard[m] <= t + ON_WALL_M or not 0 < gap <= WALL_END_GAP_M:
+                continue
+            count = int(min(0.5 * gap, WALL_END_REACH_M) // TRACE_SPACING_M)
+            along = np.arange(1, count + 1)[:, None] * TRACE_SPACING_M
+            out_p.append(p + along * (t * u - p) / gap)
+            out_n.append(np.repeat(n[None, :], count, axis=0))
+    if not out_p:
+        return none
+    return np.vstack(out_p), np.vstack(out_n)
 
 
 def orientation_bins(normals: np.ndarray, bins: int = ORIENTATIONS) -> np.ndarray:
