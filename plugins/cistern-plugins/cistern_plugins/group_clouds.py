@@ -142,37 +142,34 @@ def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple
     :func:`~cistern_plugins.alignment.scan_points` gives them) and their ``normals`` are relative to the
     sonar."""
     valid = np.flatnonzero(scan.valid)
-    none = np.zeros((0, 2)), np.zeros((0, 2))
     if len(valid) < 2 or WALL_END_REACH_M <= 0:
-        return none
+        return np.zeros((0, 2)), np.zeros((0, 2))
     bearings = scan.bearings_rad
     step = float(np.median(np.abs(np.angle(np.exp(1j * np.diff(bearings))))))
-    heard = np.full(len(bearings), np.nan)
+    heard = np.full(len(bearings), np.inf)  # a beam that heard nothing passed every wall
     heard[valid] = scan.ranges_m[valid]
-    out_p, out_n = [], []
-    for row, k in enumerate(valid):
-        p, n = points[row], normals[row]
-        for m, back in ((k - 1, row + 1), ((k + 1) % len(bearings), row - 1)):
-            if abs(np.angle(np.exp(1j * (bearings[m] - bearings[k])))) > 1.5 * step:
-                continue  # the edge of a sector, not a neighbour
-            chord = points[back % len(points)] - p
-            if abs(float(n @ chord)) > ON_WALL_M or float(np.hypot(*chord)) > WALL_END_GAP_M:
-                continue  # no wall of two echoes ends here
-            angle = bearings[m] + scan.yaw_rad
-            u = np.array([math.cos(angle), math.sin(angle)])
-            if float(n @ u) >= 0:
-                continue  # the next beam runs away from the wall's face
-            t = float(n @ p) / float(n @ u)
-            gap = float(np.hypot(*(t * u - p)))
-            if heard[m] <= t + ON_WALL_M or not 0 < gap <= WALL_END_GAP_M:
-                continue
-            count = int(min(0.5 * gap, WALL_END_REACH_M) // TRACE_SPACING_M)
-            along = np.arange(1, count + 1)[:, None] * TRACE_SPACING_M
-            out_p.append(p + along * (t * u - p) / gap)
-            out_n.append(np.repeat(n[None, :], count, axis=0))
-    if not out_p:
-        return none
-    return np.vstack(out_p), np.vstack(out_n)
+    rows = np.arange(len(valid))
+    ends, end_normals = [], []
+    for side in (-1, 1):  # the end each way round the sweep
+        beam = (valid + side) % len(bearings)
+        chord = points[(rows - side) % len(valid)] - points  # to the echo on the other side
+        angle = bearings[beam] + scan.yaw_rad
+        ray = np.column_stack([np.cos(angle), np.sin(angle)])
+        facing = np.einsum("ij,ij->i", normals, ray)
+        ok = ((np.abs(np.angle(np.exp(1j * (bearings[beam] - bearings[valid])))) <= 1.5 * step)  # a neighbour
+              & (np.abs(np.einsum("ij,ij->i", normals, chord)) <= ON_WALL_M)  # a wall of two echoes
+              & (np.hypot(chord[:, 0], chord[:, 1]) <= WALL_END_GAP_M) & (facing < 0))
+        t = np.einsum("ij,ij->i", normals, points) / np.where(ok, facing, -1.0)
+        beyond = t[:, None] * ray - points  # from the last echo to the next beam's crossing of the wall
+        gap = np.hypot(beyond[:, 0], beyond[:, 1])
+        ok &= (heard[beam] > t + ON_WALL_M) & (gap > 0) & (gap <= WALL_END_GAP_M)
+        reach = np.minimum(0.5 * gap, WALL_END_REACH_M)  # halfway to the crossing: where the end lies on average
+        count = np.where(ok, np.floor_divide(reach, TRACE_SPACING_M), 0).astype(np.int64)
+        which = np.repeat(rows, count)
+        along = (np.arange(len(which)) - np.repeat(np.cumsum(count) - count, count) + 1) * TRACE_SPACING_M
+        ends.append(points[which] + along[:, None] * beyond[which] / gap[which, None])
+        end_normals.append(normals[which])
+    return np.vstack(ends), np.vstack(end_normals)
 
 
 def orientation_bins(normals: np.ndarray, bins: int = ORIENTATIONS) -> np.ndarray:
