@@ -42,7 +42,7 @@ import numpy as np
 
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.poses import Poses
-from cistern_archive.core.scan import RangeScan
+from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_archive.grid.surface import SurfaceParams, signed_distance, slice_waters
 
 SAME_LEVEL_M = 0.3
@@ -136,7 +136,7 @@ def smooth_along_wall(ranges_m: np.ndarray, lean_rad: np.ndarray, bearings_rad: 
     out = ranges.copy()
     for start in range(0, idx.size, SMOOTH_ROWS):  # rows at a time: memory grows with the beams, not their square
         rows = slice(start, start + SMOOTH_ROWS)
-        apart = np.abs(np.angle(np.exp(1j * (b[rows, None] - b[None, :]))))
+        apart = np.abs(wrap_angle(b[rows, None] - b[None, :]))
         together = ((apart <= window_rad) & (np.abs(r[rows, None] - r[None, :]) < same_wall_m)).astype(float)
         out[idx[rows]] = together @ r / together.sum(axis=1)
     return out

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from cistern_archive.core.scan import RangeScan
+from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import (GRAZING_DEG, OPEN_SECTOR_DEG, FreeSpace, estimate_normals, rotate, scan_points,
                                        silent_water, transform)
 
@@ -95,6 +95,17 @@ def facing_normals(points: np.ndarray) -> np.ndarray:
     return normals
 
 
+def median_step(angles: np.ndarray) -> float:
+    """The median step between consecutive angles (radians, each wrapped to half a turn)."""
+    return float(np.median(np.abs(wrap_angle(np.diff(angles)))))
+
+
+def runs(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Items laid in runs of ``counts[i]`` each: every item's run, and its place in the run from 1."""
+    which = np.repeat(np.arange(len(counts)), counts)
+    return which, np.arange(len(which)) - (np.cumsum(counts) - counts)[which] + 1
+
+
 def wall_trace(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A scan's wall points (beam order) with the wall traced between consecutive echoes no farther
     apart than :data:`TRACE_GAP_M`, every :data:`TRACE_SPACING_M`, and their normals interpolated.
@@ -108,16 +119,14 @@ def wall_trace(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.
         return points, normals
     chord = np.diff(points, axis=0)
     length = np.hypot(chord[:, 0], chord[:, 1])
-    bearing = np.arctan2(points[:, 1], points[:, 0])
-    step = float(np.median(np.abs(np.angle(np.exp(1j * np.diff(bearing))))))
+    step = median_step(np.arctan2(points[:, 1], points[:, 0]))
     reach = 0.5 * (np.hypot(*points[1:].T) + np.hypot(*points[:-1].T))
     joined = length <= np.maximum(TRACE_GAP_M, reach * step / math.sin(math.radians(GRAZING_DEG)))
     steps = np.where(joined, np.floor(length / TRACE_SPACING_M).astype(np.int64), 0)
     if not steps.any():
         return points, normals
-    seg = np.repeat(np.arange(len(chord)), steps)
-    first = np.cumsum(steps) - steps
-    t = (np.arange(len(seg)) - first[seg] + 1) / (steps[seg] + 1)
+    seg, place = runs(steps)
+    t = place / (steps[seg] + 1)
     filled = points[seg] + t[:, None] * chord[seg]
     blend = (1 - t)[:, None] * normals[seg] + t[:, None] * normals[seg + 1]
     blend /= np.maximum(np.hypot(blend[:, 0], blend[:, 1]), 1e-9)[:, None]
@@ -145,7 +154,7 @@ def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple
     if len(valid) < 2 or WALL_END_REACH_M <= 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
     bearings = scan.bearings_rad
-    step = float(np.median(np.abs(np.angle(np.exp(1j * np.diff(bearings))))))
+    step = median_step(bearings)
     heard = np.full(len(bearings), np.inf)  # a beam that heard nothing passed every wall
     heard[valid] = scan.ranges_m[valid]
     rows = np.arange(len(valid))
@@ -156,7 +165,7 @@ def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple
         angle = bearings[beam] + scan.yaw_rad
         ray = np.column_stack([np.cos(angle), np.sin(angle)])
         facing = np.einsum("ij,ij->i", normals, ray)
-        ok = ((np.abs(np.angle(np.exp(1j * (bearings[beam] - bearings[valid])))) <= 1.5 * step)  # a neighbour
+        ok = ((np.abs(wrap_angle(bearings[beam] - bearings[valid])) <= 1.5 * step)  # a neighbour
               & (np.abs(np.einsum("ij,ij->i", normals, chord)) <= ON_WALL_M)  # a wall of two echoes
               & (np.hypot(chord[:, 0], chord[:, 1]) <= WALL_END_GAP_M) & (facing < 0))
         t = np.einsum("ij,ij->i", normals, points) / np.where(ok, facing, -1.0)
@@ -165,8 +174,8 @@ def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple
         ok &= (heard[beam] > t + ON_WALL_M) & (gap > 0) & (gap <= WALL_END_GAP_M)
         reach = np.minimum(0.5 * gap, WALL_END_REACH_M)  # halfway to the crossing: where the end lies on average
         count = np.where(ok, np.floor_divide(reach, TRACE_SPACING_M), 0).astype(np.int64)
-        which = np.repeat(rows, count)
-        along = (np.arange(len(which)) - np.repeat(np.cumsum(count) - count, count) + 1) * TRACE_SPACING_M
+        which, place = runs(count)
+        along = place * TRACE_SPACING_M
         ends.append(points[which] + along[:, None] * beyond[which] / gap[which, None])
         end_normals.append(normals[which])
     return np.vstack(ends), np.vstack(end_normals)
