@@ -150,6 +150,9 @@ def test_capabilities_are_recorded_at_load():
     registry = Registry()
     assert registry.load("matcher", "correlative").capabilities == {GuidedMatcher}  # declared by subclassing
     assert registry.load("matcher", "pf-pairwise").has(GuidedMatcher)  # structurally: match takes guess
-    assert not registry.load("matcher", "icp").capabilities
+    for local in ("icp", "particle-icp"):  # declared by subclassing: they start from the guess
+        assert registry.load("matcher", local).capabilities == {GuidedMatcher}
+    plain = Registry({"matcher": [entry("compass-only", "stage_plugins:CompassOnlyMatcher")]})
+    assert not plain.load("matcher", "compass-only").capabilities
     assert registry.load("localizer", "site-graph").has(GuidedLocalizer)
     assert not registry.load("localizer", "wls").capabilities

@@ -8,7 +8,9 @@ robust: ``truncated`` (``min(d, c)^2``) or ``huber``, so multipath outliers cann
 
 Steps (one directed pair, no odometry, so the prior is wide):
 
-1. Draw ``initial_particles`` poses uniformly in ``±init_m`` (x, y) and ``±init_deg`` (yaw).
+1. Draw ``initial_particles`` poses uniformly in ``±init_m`` (x, y) and ``±init_deg`` (yaw); with a
+   localizer's guess (:class:`~cistern_archive.pipeline.contracts.MatchGuess`), in its square
+   ``±radius_m`` around the guessed offset and ``±guess_init_deg`` around its heading correction.
 2. Weight: mean robust error ``E_k`` of a random subset of ``n_points`` moving points; the weight is the
    Boltzmann factor ``exp(-(E_k - min E) / T)`` with ``T`` the median excess error, which keeps the
    paper's ordering (smaller error, larger weight) and is invariant to the scale of the error.
@@ -23,7 +25,9 @@ Steps (one directed pair, no odometry, so the prior is wide):
 
 The converged flag is honest: the spread criterion must be met and the final placement must pass the
 shared test of :mod:`cistern_plugins.registration` (inliers, inlier ratio, two-direction constraint,
-free-space violations). The per-iteration weight and spread averages and particle snapshots go into
+free-space violations); with a guess, the estimate must also lie within its square
+(:func:`~cistern_plugins.registration.outside_window`). The per-iteration weight and spread averages
+and particle snapshots go into
 :class:`~cistern_archive.pipeline.contracts.MatchHistory`.
 """
 
@@ -36,7 +40,8 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from cistern_archive.pipeline.contracts import HistoryThreshold, MatchHistory, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import (GuidedMatcher, HistoryThreshold, MatchGuess, MatchHistory,
+                                                MatchResult, StageParams)
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.registration import (
     ConvergenceParams,
@@ -44,9 +49,11 @@ from cistern_plugins.registration import (
     fit_covariance,
     judge,
     match_confidence,
+    outside_window,
     refine_point_to_line,
     robust_error,
     scan_points,
+    start_pose,
     too_few_points,
     transform_many,
 )
@@ -61,6 +68,8 @@ class ParticleICPParams(ConvergenceParams):
     n_points: int = Field(80, ge=10)
     init_m: float = Field(2.5, gt=0)
     init_deg: float = Field(25.0, ge=0, le=180)
+    guess_init_deg: float = Field(6.0, ge=0, le=180, description="with a guess: the initial yaw spread around "
+                                  "its heading correction (its square replaces ±init_m)")
     robust: Literal["truncated", "huber"] = "truncated"
     robust_scale_m: float = Field(0.3, gt=0)
     sigma_m: float = Field(0.2, gt=0)
@@ -99,15 +108,16 @@ def systematic_resample(weights: np.ndarray, n: int, rng: np.random.Generator) -
     return np.minimum(np.searchsorted(np.cumsum(weights), positions), len(weights) - 1)
 
 
-class ParticleICPMatcher:
+class ParticleICPMatcher(GuidedMatcher):
     """Particle filter over (x, y, yaw) weighted by robust ICP error (the ``particle-icp`` matcher)."""
 
     name: ClassVar[str] = "particle-icp"
     Params: ClassVar[type[StageParams]] = ParticleICPParams
 
     def match(self, reference: RangeScan, moving: RangeScan, params: StageParams, *,
-              rng: np.random.Generator) -> MatchResult:
-        """Locate ``moving`` in ``reference``'s frame; all randomness comes from ``rng``."""
+              rng: np.random.Generator, guess: MatchGuess | None = None) -> MatchResult:
+        """Locate ``moving`` in ``reference``'s frame, around the origin or in ``guess``'s window (module
+        docstring, step 1); all randomness comes from ``rng``."""
         p = ParticleICPParams.of(params)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
@@ -115,8 +125,9 @@ class ParticleICPMatcher:
             return MatchResult.no_estimate(why, seconds=time.perf_counter() - start)
         model = ReferenceModel(reference)
         src = scan_points(moving)
-        scale = np.array([p.init_m, p.init_m, math.radians(p.init_deg)])
-        poses = rng.uniform(-1, 1, (p.initial_particles, 3)) * scale
+        scale = (np.array([p.init_m, p.init_m, math.radians(p.init_deg)]) if guess is None
+                 else np.array([guess.radius_m, guess.radius_m, math.radians(p.guess_init_deg)]))
+        poses = start_pose(guess) + rng.uniform(-1, 1, (p.initial_particles, 3)) * scale
         sigma = np.array([p.sigma_m, p.sigma_m, math.radians(p.sigma_deg)])
         floor = np.array([p.floor_m, p.floor_m, math.radians(p.floor_deg)])
         weight_avg, std_avg, snaps, snap_its = [], [], [], []
@@ -147,7 +158,7 @@ class ParticleICPMatcher:
         quality = model.assess_pair(moving, estimate, p.limits())
         reason = "" if settled else (
             f"particles did not converge in {p.iterations} iterations (spread {std_avg[-1]:.3f} m)")
-        reason = reason or judge(quality, p.limits())
+        reason = reason or outside_window(estimate, guess) or judge(quality, p.limits())
         history = MatchHistory(np.array(weight_avg), np.array(std_avg), tuple(snaps), tuple(snap_its),
                                std_threshold=HistoryThreshold(p.converge_std_m, "converge_std_m (per axis)"))
         cov = np.cov(poses.T, aweights=w) if len(poses) > 3 else None

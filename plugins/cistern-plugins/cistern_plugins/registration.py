@@ -34,6 +34,10 @@ Point-to-line ICP
     :class:`ICPOutcome`); :func:`refine_point_to_line` (polish a search matcher's estimate without the
     along-gallery pull of a point score; ``None`` when it slides farther than allowed) and
     :func:`fit_covariance` (the 3 × 3 covariance of a point-to-line fit, for ``MatchResult.covariance``).
+A localizer's guess (:class:`~cistern_archive.pipeline.contracts.MatchGuess`), for a local matcher
+    :func:`start_pose` (the guess's pose, or the compass-aligned zero), :func:`outside_window` (refuse an
+    estimate that slid out of the guess's square) and :func:`turn_from_start` (the heading correction
+    less the guess's).
 
 Example: the end of a search matcher::
 
@@ -67,6 +71,7 @@ from cistern_plugins.alignment import (
     verdict,
 )
 from cistern_plugins.closest_point import ICPOutcome, fit_covariance, refine_point_to_line, run_icp
+from cistern_plugins.guess_window import outside_window, start_pose, turn_from_start
 from cistern_plugins.verification import judge, match_confidence, tentative_fit
 
 __all__ = [
@@ -81,14 +86,17 @@ __all__ = [
     "inverse",
     "judge",
     "match_confidence",
+    "outside_window",
     "refine_point_to_line",
     "robust_error",
     "rotate",
     "run_icp",
     "scan_points",
+    "start_pose",
     "tentative_fit",
     "too_few_points",
     "transform",
     "transform_many",
+    "turn_from_start",
     "verdict",
 ]
