@@ -76,6 +76,22 @@ def test_check_matcher_passes_a_real_matcher():
     report = check_matcher(CorrelativeMatcher(), n_pairs=4, seed=0, stream=None)
     assert report.passed, report.format()
     assert report.median_seconds > 0
+    assert "0 of 4 converged outside" in next(c for c in report.checks if c.name == "guess").detail
+
+
+class _IgnoresGuess(CorrelativeMatcher):
+    """Declares the guided capability but searches its own wide window whatever the guess."""
+
+    name = "ignores-guess"
+
+    def match(self, reference, moving, params, *, rng, guess=None):
+        return super().match(reference, moving, params, rng=rng)
+
+
+def test_check_matcher_flags_a_guided_matcher_that_searches_beyond_its_window():
+    report = check_matcher(_IgnoresGuess(), n_pairs=4, seed=0, stream=None)
+    assert [c.name for c in report.failures()] == ["guess"]
+    assert "converged outside a ±0.5 m window 1.5 m from the truth" in report.failures()[0].detail
 
 
 def test_fixtures(simulated_pair, simulated_pairs, isolated_registry):

@@ -14,7 +14,12 @@ It runs a matcher plugin through the checks the pipeline relies on and prints a 
    reaches ``min_success_rate``;
 5. **honesty** — on pairs from two different sites (no overlap) at most ``max_false_success_rate`` are
    reported converged;
-6. **speed** — the median time per match is at most ``max_median_seconds``.
+6. **speed** — the median time per match is at most ``max_median_seconds``;
+7. **guess** (a :class:`~cistern_archive.pipeline.contracts.GuidedMatcher` only) — given a guess near
+   the truth (within ±0.2 m, ``±GUESS_RADIUS_M`` window) the overlapping pairs succeed at least as often
+   as ``min_success_rate``, and given a guess whose window lies ``GUESS_MISS_M`` from the truth no
+   estimate reported converged lies outside that window: a guided matcher searches the window it is
+   given (a localizer relies on it to tell a loop closure from a look-alike place).
 """
 
 from __future__ import annotations
@@ -28,10 +33,18 @@ import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from cistern_archive.core.errors import PluginError
-from cistern_archive.pipeline.contracts import Matcher, MatchResult, StageParams
+from cistern_archive.pipeline.contracts import GuidedMatcher, Matcher, MatchGuess, MatchResult, StageParams
 from cistern_archive.pipeline.registry import checked_plugin
 from cistern_archive.simulation.pairs import SimulatedPair, simulated_pair
 from cistern_archive.testing.scoring import PairScore, score
+
+
+GUESS_RADIUS_M = 0.5
+"""Half side of the window of the guesses the guess check gives."""
+GUESS_MISS_M = 1.5
+"""How far from the truth the guess check puts the centre of the window that misses it."""
+GUESS_TOLERANCE_M = 0.05
+"""How far past its window's edge a converged estimate may lie (a refinement's last step)."""
 
 
 @dataclass(frozen=True)
@@ -105,7 +118,34 @@ def check_matcher(plugin: Any, *, n_pairs: int = 12, seed: int = 0, params: Stag
     report.checks.append(Check("speed", report.median_seconds <= max_median_seconds,
                                f"median {report.median_seconds * 1000:.1f} ms per match (limit "
                                f"{max_median_seconds * 1000:.0f} ms)"))
+    if checked_plugin("matcher", instance).has(GuidedMatcher):  # the capability as the registry reads it
+        report.checks.append(_check_guess(instance, pairs, p, seed, min_success_rate))
     return _emit(report, stream)
+
+
+def _check_guess(instance: Any, pairs: list[SimulatedPair], p: StageParams, seed: int, min_success: float) -> Check:
+    """Check 7 of the module docstring: guesses near the truth succeed, a window that misses the truth
+    is searched and no farther."""
+    rng = np.random.default_rng([seed, 7])
+    near, outside = [], []
+    for k, pr in enumerate(pairs):
+        shift = rng.uniform(-0.2, 0.2, 2)
+        guess = MatchGuess(pr.dx_m + shift[0], pr.dy_m + shift[1], pr.dyaw_rad, GUESS_RADIUS_M)
+        result = instance.match(pr.reference, pr.moving, p, rng=np.random.default_rng([seed, k]), guess=guess)
+        near.append(score(result, pr).success)
+        turn = rng.uniform(0.0, 2.0 * math.pi)
+        miss = MatchGuess(pr.dx_m + GUESS_MISS_M * math.cos(turn), pr.dy_m + GUESS_MISS_M * math.sin(turn),
+                          pr.dyaw_rad, GUESS_RADIUS_M)
+        result = instance.match(pr.reference, pr.moving, p, rng=np.random.default_rng([seed, k]), guess=miss)
+        off = max(abs(result.dx_m - miss.dx_m), abs(result.dy_m - miss.dy_m))
+        if result.converged and not off <= GUESS_RADIUS_M + GUESS_TOLERANCE_M:
+            outside.append(f"pair {k}: ({result.dx_m:.2f}, {result.dy_m:.2f}) m, {off:.2f} m from the window's centre")
+    rate = float(np.mean(near))
+    passed = rate >= min_success and not outside
+    detail = (f"success {100 * rate:.0f} % with a guess within 0.2 m of the truth (need {100 * min_success:.0f} %); "
+              f"{len(outside)} of {len(pairs)} converged outside a ±{GUESS_RADIUS_M:g} m window "
+              f"{GUESS_MISS_M:g} m from the truth")
+    return Check("guess", passed, detail + (f" ({outside[0]})" if outside else ""))
 
 
 def _emit(report: ConformanceReport, stream: TextIO | None) -> ConformanceReport:
