@@ -12,7 +12,8 @@ Two sources of sites:
   with a station every metre or two, another compass, more clutter).
 
 Each site is built by the pipeline runner (:func:`cistern_archive.pipeline.runner.build_site`) with the
-record's plugins (the defaults unless the record names others, or ``--localizer``), and scored:
+record's plugins (the defaults unless the record names others, or ``--localizer`` and ``--matcher``),
+and scored:
 
 * scans placed / scans;
 * position error of the placed scans after the rigid alignment of all of them onto the truth
@@ -253,13 +254,14 @@ def far_pair_scores(loaded, build, truth: SiteTruth, limit: int) -> list[dict]:
     return rows
 
 
-def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0,
-               matcher_params: dict | None = None) -> dict | None:
+def score_site(path: Path, catalog: Path, localizer=None, far_limit: int = 0, matcher=None) -> dict | None:
     """Build one site with the runner and score it against its truth (module docstring); ``localizer``
-    is ``(name, params)`` (:func:`with_stage`), ``matcher_params`` are added to the record's matcher's."""
+    and ``matcher`` are each ``(name, params)`` (:func:`with_stage`: a ``None`` name keeps the record's
+    plugin and adds the params to its own)."""
     name, params = localizer or (None, {})
-    loaded = with_stage(with_stage(load_record(path, catalog), "localizer", name, params), "matcher", None,
-                        matcher_params)
+    matcher_name, matcher_params = matcher or (None, {})
+    loaded = with_stage(with_stage(load_record(path, catalog), "localizer", name, params), "matcher",
+                        matcher_name, matcher_params)
     record = loaded.record
     if not record.truth:
         return None
@@ -469,7 +471,7 @@ def demo_main(args) -> int:
         if args.site and path.stem not in args.site:
             continue
         row = score_site(path, args.catalog, (args.localizer, args.localizer_params),
-                         matcher_params=args.matcher_params)
+                         matcher=(args.matcher, args.matcher_params))
         if row is not None:
             rows.append(row)
     print_rows(rows)
@@ -483,13 +485,13 @@ def demo_main(args) -> int:
     return 0
 
 
-def _random_site(job: tuple[Path, Path, tuple[str | None, dict], int, dict]) -> dict:
+def _random_site(job: tuple[Path, Path, tuple[str | None, dict], int, tuple[str | None, dict]]) -> dict:
     """Simulate one random site into the temporary catalog, build it and score it (one worker's job)."""
-    spec_path, catalog, localizer, far_limit, matcher_params = job
+    spec_path, catalog, localizer, far_limit, matcher = job
     start = time.perf_counter()
     record_path = simulate_into(spec_path, catalog)
     simulated = time.perf_counter() - start
-    row = score_site(record_path, catalog, localizer, far_limit, matcher_params)
+    row = score_site(record_path, catalog, localizer, far_limit, matcher)
     row["simulation_seconds"] = simulated
     return row
 
@@ -506,7 +508,8 @@ def random_main(args) -> int:
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="random-cisterns-") as tmp:
         catalog = Path(tmp)
-        jobs = [(path, catalog, (args.localizer, args.localizer_params), args.far_pairs, args.matcher_params)
+        jobs = [(path, catalog, (args.localizer, args.localizer_params), args.far_pairs,
+                 (args.matcher, args.matcher_params))
                 for path in write_specs(cisterns, catalog)]
         if args.workers > 1:
             with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -559,8 +562,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--localizer", help="use this localizer plugin instead of the records' own")
     parser.add_argument("--localizer-params", type=json.loads, default={},
                         help='localizer parameters as JSON, e.g. \'{"bridge_confidence": 0.8}\'')
+    parser.add_argument("--matcher", help="use this matcher plugin instead of the records' own")
     parser.add_argument("--matcher-params", type=json.loads, default={},
-                        help="parameters added to the records' matcher's, as JSON")
+                        help="parameters added to the records' matcher's (or --matcher's), as JSON")
     parser.add_argument("--random", type=int, metavar="N", help="N random multi-chamber cisterns instead of the catalog")
     parser.add_argument("--seed", type=int, default=1, help="seed of the random cisterns")
     parser.add_argument("--workers", type=int, default=1, help="sites built in parallel (--random)")
