@@ -6,7 +6,7 @@ to the reference points (here a ``scipy.spatial.cKDTree``) — and resample with
 related to that error. Following the paper's future work (Sec. 6), the squared distance is made
 robust: ``truncated`` (``min(d, c)^2``) or ``huber``, so multipath outliers cannot dominate.
 
-Steps (one directed pair, no odometry, so the prior is wide):
+Steps (one directed pair; without a guess the prior is wide):
 
 1. Draw ``initial_particles`` poses uniformly in ``±init_m`` (x, y) and ``±init_deg`` (yaw); with a
    localizer's guess (:class:`~cistern_archive.pipeline.contracts.MatchGuess`), in its square
