@@ -325,6 +325,20 @@ def test_sites_benchmark_refuses_generator_settings_it_cannot_draw_from():
         assert cause in out.stderr and "Traceback" not in out.stderr, out.stderr
 
 
+def test_sites_benchmark_builds_with_the_matcher_it_is_given():
+    """``score_site(..., matcher=(name, params))`` (``--matcher``, ``--matcher-params``): the pool built
+    with its own matcher converges on its pairs; with ``icp`` allowed one iteration, no pair settles
+    (what still places its scans is ``site-graph``'s fit of the scans as wholes)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from sites import score_site
+
+    catalog = ROOT / "catalog"
+    own = score_site(catalog / "sites" / "lair-pool.yaml", catalog)
+    assert own["pairs_converged"] == own["pairs"] > 0
+    starved = score_site(catalog / "sites" / "lair-pool.yaml", catalog, matcher=("icp", {"max_iterations": 1}))
+    assert starved["pairs"] > 0 and starved["pairs_converged"] == 0
+
+
 def test_sites_benchmark_scores_a_join_against_its_interval():
     """``join_errors``: a join's stations, how far the second lies from where it belongs relative to the
     first after the rigid alignment, and its 95 % half-width; a join 0.2 m off with a sigma of 0.05 m
