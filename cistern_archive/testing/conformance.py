@@ -99,7 +99,7 @@ def check_matcher(plugin: Any, *, n_pairs: int = 12, seed: int = 0, params: Stag
     """
     instance = plugin() if isinstance(plugin, type) else plugin
     report = ConformanceReport(plugin=str(getattr(instance, "name", type(instance).__name__)))
-    contract = _check_contract(instance)
+    contract, capabilities = _check_contract(instance)
     report.checks.append(contract)
     if not contract.passed:
         return _emit(report, stream)
@@ -118,7 +118,7 @@ def check_matcher(plugin: Any, *, n_pairs: int = 12, seed: int = 0, params: Stag
     report.checks.append(Check("speed", report.median_seconds <= max_median_seconds,
                                f"median {report.median_seconds * 1000:.1f} ms per match (limit "
                                f"{max_median_seconds * 1000:.0f} ms)"))
-    if checked_plugin("matcher", instance).has(GuidedMatcher):  # the capability as the registry reads it
+    if GuidedMatcher in capabilities:  # the capability as the registry reads it
         report.checks.append(_check_guess(instance, pairs, p, seed, min_success_rate))
     return _emit(report, stream)
 
@@ -154,13 +154,15 @@ def _emit(report: ConformanceReport, stream: TextIO | None) -> ConformanceReport
     return report
 
 
-def _check_contract(instance: Any) -> Check:
+def _check_contract(instance: Any) -> tuple[Check, frozenset[type]]:
+    """Check 1 of the module docstring, and the optional capabilities the registry finds."""
     problems = []
+    capabilities: frozenset[type] = frozenset()
     if not isinstance(instance, Matcher):
         problems.append("does not implement the Matcher protocol (name, Params, match)")
     else:
         try:
-            checked_plugin("matcher", instance)  # what the registry checks at load: signatures, capabilities
+            capabilities = checked_plugin("matcher", instance).capabilities  # as the registry checks at load
         except PluginError as exc:
             problems.append(str(exc))
     params = getattr(instance, "Params", None)
@@ -180,7 +182,8 @@ def _check_contract(instance: Any) -> Check:
             pass
     if not isinstance(getattr(instance, "name", None), str) or not instance.name:
         problems.append("name must be a non-empty string")
-    return Check("contract", not problems, "; ".join(problems) or "Protocol, name and Params are in order")
+    return (Check("contract", not problems, "; ".join(problems) or "Protocol, name and Params are in order"),
+            capabilities)
 
 
 def _run_all(instance: Any, pairs: list[SimulatedPair], p: StageParams, seed: int) -> tuple[list[MatchResult], list[str]]:
