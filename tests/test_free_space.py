@@ -222,3 +222,18 @@ def test_a_corner_heard_alone_is_no_corner_of_a_smaller_room():
     assert "free space" in hard_limits(look_alike, limits)
     right = model.assess_pair(same_hall, np.array([2.0, 1.5, 0.0]), limits)
     assert right.violation_run_m == 0.0 and hard_limits(right, limits) == ""
+
+
+def test_a_cloud_gathered_along_a_track_shows_no_free_space():
+    """The echoes of a moving vehicle compensated into one frame were heard from along its track, not
+    on beams from the station: the line from the station to an echo says nothing of its water. Free
+    space is then unknown everywhere (every free-space test passes); what lies behind an echo is still
+    hidden from the station's view."""
+    stationary = jamb_scan(0.9, jamb_beam=50)
+    cloud = dataclasses.replace(stationary, rays_from_station=False)
+    inside = point_at(200.0, 2.0)
+    assert FreeSpace(stationary).in_free_space(inside, margin_m=0.1)[0]
+    assert FreeSpace(stationary).violations(inside, margin_m=0.1) == (1, 1)
+    assert not FreeSpace(cloud).in_free_space(inside, margin_m=0.1)[0]
+    assert FreeSpace(cloud).violations(inside, margin_m=0.1) == (0, 0)
+    assert not FreeSpace(cloud).visible(point_at(200.0, 5.5), tolerance_m=0.1)[0]

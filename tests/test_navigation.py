@@ -297,7 +297,7 @@ def test_guided_correlative_finds_the_displacement_around_a_guess():
 
     reference, moving = scan_from(np.zeros(2)), scan_from(np.array([2.3, -0.8]))
     matcher = GuidedCorrelativeMatcher()
-    params = GuidedCorrelativeParams(sigma_m=0.15)
+    params = GuidedCorrelativeParams(sigma_m=0.03)  # 0.15 m for these 50 m scans (length unit 5)
     result = matcher.match(reference, moving, params, rng=np.random.default_rng(0),
                            guess=MatchGuess(1.5, 0.0, 0.0, 2.0))
     assert result.converged, result.reason
@@ -327,3 +327,12 @@ def test_compensation_refuses_a_scan_without_beam_times():
 
     with pytest.raises(ValueError, match="no per-beam times"):
         compensated_range_scan(_scan(np.zeros((3, 4), dtype=np.uint8)), _straight())
+
+
+def test_a_compensated_scan_says_its_echoes_were_not_heard_from_the_station():
+    from cistern_archive.navigation.motion import compensated_range_scan
+
+    grid = np.zeros((3, 40), dtype=np.uint8)
+    grid[:, 20] = 1
+    scan, _ = compensated_range_scan(_scan(grid, times=np.array([1.0, 2.0, 3.0])), _straight())
+    assert len(scan.ranges_m) == 3 and not scan.rays_from_station  # the free-space tests know nothing of its water

@@ -183,6 +183,12 @@ class RangeScan:
         lifted by the time-varying gain, passes the detection threshold by itself on most beams
         (:func:`cistern_archive.sonar.segmentation.noise_limited`), so a beam that heard nothing there
         says nothing about walls. ``inf`` when the noise never gets there, or it is not known.
+    rays_from_station : bool
+        Whether every echo was heard on a beam from the station, so that the water between the station
+        and the echo was seen empty (a stationary scan). ``False`` for a cloud of echoes a moving
+        vehicle heard from along its track, compensated into one frame
+        (:func:`cistern_archive.navigation.motion.compensated_range_scan`): the line from the station to an
+        echo was no beam's, and says nothing of the water on it.
     """
 
     bearings_rad: np.ndarray
@@ -197,6 +203,7 @@ class RangeScan:
     time_s: float = float("nan")
     odometry: np.ndarray | None = None
     detection_range_m: float = float("inf")
+    rays_from_station: bool = True
 
     def __post_init__(self) -> None:
         bearings = np.asarray(self.bearings_rad, dtype=np.float64)

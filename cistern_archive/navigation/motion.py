@@ -122,5 +122,5 @@ def compensated_range_scan(scan: Scan, track: Track, *, clock_offset_s: float = 
     range_scan = RangeScan(bearings_rad=np.arctan2(points[:, 1], points[:, 0]), ranges_m=np.hypot(points[:, 0], points[:, 1]),
                            yaw_rad=float(odometry[2]), depth_m=scan.depth_m, max_range_m=scan.max_range_m,
                            bin_size_m=scan.bin_size_m, beam_width_rad=scan.beam_width_rad, station=scan.station,
-                           time_s=reference + clock_offset_s, odometry=odometry)
+                           time_s=reference + clock_offset_s, odometry=odometry, rays_from_station=False)
     return range_scan, reference

@@ -47,8 +47,7 @@ class SurveyConfig(SurveySettings):
     matcher and the localizer (a record's ``pipeline`` stages) and the seed."""
 
     matcher: str = "guided-correlative"
-    matcher_params: dict = Field(default_factory=lambda: {"sigma_m": 0.3, "coarse_m": 0.2, "fine_m": 0.1,
-                                                          "ambiguity_distance_m": 2.0, "yaw_window_deg": 2.0})
+    matcher_params: dict = Field(default_factory=lambda: {"yaw_window_deg": 2.0})
     localizer: str = "nav-graph"
     localizer_params: dict = Field(default_factory=lambda: {"consecutive": False, "loop_min_gap": 5, "loop_per_scan": 2,
                                                             "compass_sigma_deg": 8.0})

@@ -29,8 +29,8 @@ from scipy.spatial import cKDTree
 from pydantic import Field
 
 from cistern_archive.core.scan import wrap_angle
-from cistern_archive.pipeline.contracts import StageParams
 from cistern_archive.core.scan import RangeScan
+from cistern_plugins.sonar_scale import SonarScaled
 
 
 def scan_points(scan: RangeScan) -> np.ndarray:
@@ -192,8 +192,10 @@ class ConvergenceThresholds:
     max_violation_run_m: float = 0.75
 
 
-class ConvergenceParams(StageParams):
-    """The convergence limits every point matcher exposes (see :class:`ConvergenceThresholds`)."""
+class ConvergenceParams(SonarScaled):
+    """The convergence limits every point matcher exposes (see :class:`ConvergenceThresholds`); their
+    lengths are written for the calibration sonar and scaled to each pair's
+    (:meth:`~cistern_plugins.sonar_scale.SonarScaled.for_scans`)."""
 
     inlier_distance_m: float = Field(0.15, gt=0)
     min_inliers: int = Field(25, ge=3)
@@ -380,6 +382,9 @@ class FreeSpace:
     corner of a chamber larger than its sonar's range hears the corner's two walls and nothing across
     the chamber, and that silence is what tells its corner from the corner of a smaller room, whose
     other walls would lie in it (:class:`ReferenceModel` judges every match so).
+
+    A scan whose echoes were not heard on beams from its station (``RangeScan.rays_from_station`` off: a
+    moving vehicle's motion-compensated cloud) shows no free space: every free-space test passes on it.
     """
 
     def __init__(self, scan: RangeScan, *, cone: bool = True, open_sector_rad: float | None = None):
@@ -401,7 +406,7 @@ class FreeSpace:
                 heard = heard | wide
                 free = np.where(wide, open_water_m(scan), ranges)
                 free = _cone_minimum(self.angles, free, reach) if reach > 0 else free
-        self.free_ranges = np.where(heard, free, np.nan)
+        self.free_ranges = np.where(heard & scan.rays_from_station, free, np.nan)
         """The same on the bearings of beams that heard an echo, and of a wide run of beams that heard
         none out to :func:`open_water_m`; unknown on the others: how far the sonar saw water
         (:meth:`in_free_space`, :meth:`violation_mask`)."""

@@ -303,7 +303,7 @@ class CorrelativeMatcher(GuidedMatcher):
         with one, ``±guess.radius_m`` around the guessed offset and ``±guess_search_deg`` around its
         heading (the ambiguity test then only sees rivals inside that window).
         """
-        p = CorrelativeParams.of(params)
+        p = CorrelativeParams.of(params).for_scans(reference, moving)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:

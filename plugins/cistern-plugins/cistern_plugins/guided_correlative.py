@@ -33,24 +33,28 @@ from scipy import ndimage
 
 from cistern_archive.pipeline.contracts import GuidedMatcher, MatchGuess, MatchResult, StageParams
 from cistern_archive.core.scan import RangeScan
+from cistern_plugins.registration import SonarScaled
 
 
-class GuidedCorrelativeParams(StageParams):
-    """Parameters of :class:`GuidedCorrelativeMatcher`; lengths in metres (scale them to the sonar)."""
+class GuidedCorrelativeParams(SonarScaled):
+    """Parameters of :class:`GuidedCorrelativeMatcher`. Lengths are written for the calibration sonar
+    (bins up to 0.08 m, ranges up to 10 m) and scaled to each pair's
+    (:meth:`~cistern_plugins.registration.SonarScaled.for_scans`): five times these for a 50 m
+    Miniking with 0.1 m bins."""
 
-    radius_m: float = Field(3.0, gt=0)
+    radius_m: float = Field(0.6, gt=0)
     yaw_window_deg: float = Field(3.0, ge=0, le=45)
     yaw_step_deg: float = Field(0.5, gt=0)
-    coarse_m: float = Field(0.2, gt=0)
-    fine_m: float = Field(0.1, gt=0)
-    sigma_m: float = Field(0.3, gt=0)
+    coarse_m: float = Field(0.04, gt=0)
+    fine_m: float = Field(0.02, gt=0)
+    sigma_m: float = Field(0.06, gt=0)
     max_points: int = Field(800, ge=10)
     min_points: int = Field(50, ge=3)
     min_score: float = Field(0.25, ge=0, le=1)
     ambiguity_ratio: float = Field(0.9, gt=0, le=1)
-    ambiguity_distance_m: float = Field(2.0, gt=0)
+    ambiguity_distance_m: float = Field(0.4, gt=0)
     temperature: float = Field(0.01, gt=0)
-    min_sigma_m: float = Field(0.1, gt=0)
+    min_sigma_m: float = Field(0.02, gt=0)
     min_sigma_deg: float = Field(0.5, gt=0)
 
 
@@ -149,7 +153,7 @@ class GuidedCorrelativeMatcher(GuidedMatcher):
               guess: MatchGuess | None = None) -> MatchResult:
         """Locate ``moving`` relative to ``reference`` (map frame) around ``guess`` (zero when None);
         deterministic, ``rng`` is unused."""
-        p = GuidedCorrelativeParams.of(params)
+        p = GuidedCorrelativeParams.of(params).for_scans(reference, moving)
         start = time.perf_counter()
         ref, mov = reference.points(), _subsample(moving.points(), p.max_points)
         if len(ref) < p.min_points or len(mov) < p.min_points:

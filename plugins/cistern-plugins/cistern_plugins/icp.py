@@ -82,7 +82,7 @@ class ICPMatcher(GuidedMatcher):
               rng: np.random.Generator, guess: MatchGuess | None = None) -> MatchResult:
         """Locate ``moving`` in ``reference``'s frame, from the compass-aligned zero pose or from ``guess``
         (then an estimate outside its square is refused); ``rng`` is unused (ICP is deterministic)."""
-        p = ICPParams.of(params)
+        p = ICPParams.of(params).for_scans(reference, moving)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:

@@ -118,7 +118,7 @@ class ParticleICPMatcher(GuidedMatcher):
               rng: np.random.Generator, guess: MatchGuess | None = None) -> MatchResult:
         """Locate ``moving`` in ``reference``'s frame, around the origin or in ``guess``'s window (module
         docstring, step 1); all randomness comes from ``rng``."""
-        p = ParticleICPParams.of(params)
+        p = ParticleICPParams.of(params).for_scans(reference, moving)
         start = time.perf_counter()
         why = too_few_points(reference, moving, p.min_points)
         if why:

@@ -3,7 +3,8 @@
 Everything a matcher plugin may import from ``cistern_plugins`` is named here; the built-in matchers
 import their shared helpers through this module too, and the modules behind it
 (:mod:`~cistern_plugins.alignment`, :mod:`~cistern_plugins.verification`,
-:mod:`~cistern_plugins.closest_point`) may change their insides as long as these names keep their
+:mod:`~cistern_plugins.closest_point`, :mod:`~cistern_plugins.guess_window`,
+:mod:`~cistern_plugins.sonar_scale`) may change their insides as long as these names keep their
 signatures and meaning. Anything else in ``cistern_plugins`` (a matcher's own functions, a name with a
 leading underscore) is an implementation detail.
 
@@ -23,7 +24,10 @@ The reference scan
     both ways). :class:`FreeSpace` is the space a sonar saw empty in front of its echoes.
 The verdict on a fit
     :class:`ConvergenceParams` (the limits as pydantic fields a matcher's ``Params`` can inherit; its
-    ``limits()`` gives :class:`ConvergenceThresholds`); :func:`too_few_points` (refuse a pair before
+    ``limits()`` gives :class:`ConvergenceThresholds`); :class:`SonarScaled` (parameters whose lengths,
+    the fields named ``*_m``, are written for the calibration sonar: ``p.for_scans(reference, moving)``
+    scales them by the pair's :func:`length_unit`, its bin and range over 0.08 m and 10 m (at least 1); every built-in
+    matcher's parameters do so); :func:`too_few_points` (refuse a pair before
     matching); :func:`verdict` (the fixed limits: inliers, inlier share, two-direction constraint,
     free space); :func:`judge` (the calibrated model when ``limits.calibrated``, else :func:`verdict`),
     :func:`match_confidence` (the calibrated probability that the fit is right, for
@@ -44,6 +48,7 @@ Example: the end of a search matcher::
     from cistern_plugins.registration import (ReferenceModel, fit_covariance, judge, match_confidence,
                                               refine_point_to_line, scan_points)
 
+    p = p.for_scans(reference, moving)  # lengths scaled to the pair's sonar
     model, src = ReferenceModel(reference), scan_points(moving)
     pose = refine_point_to_line(model, src, pose, iterations=30, correspondence_m=0.3,
                                 trim_fraction=0.8, max_shift_m=0.2) or pose
@@ -72,6 +77,7 @@ from cistern_plugins.alignment import (
 )
 from cistern_plugins.closest_point import ICPOutcome, fit_covariance, refine_point_to_line, run_icp
 from cistern_plugins.guess_window import outside_window, start_pose, turn_from_start
+from cistern_plugins.sonar_scale import SonarScaled, length_unit
 from cistern_plugins.verification import judge, match_confidence, tentative_fit
 
 __all__ = [
@@ -81,10 +87,12 @@ __all__ = [
     "FreeSpace",
     "ICPOutcome",
     "ReferenceModel",
+    "SonarScaled",
     "compose",
     "fit_covariance",
     "inverse",
     "judge",
+    "length_unit",
     "match_confidence",
     "outside_window",
     "refine_point_to_line",

@@ -51,7 +51,7 @@ class PFPairwiseMatcher:
         correction (:class:`SearchWindow`); verification still looks for rivals over an ``L_init``
         square around it (:func:`~cistern_plugins.pf_pairwise.verification.verify_unique`).
         """
-        p = PFParams.of(params)
+        p = PFParams.of(params).for_scans(reference, moving)
         start = time.perf_counter()
         why = refuse(reference, moving, p)
         model = None if why else self.likelihood_map(reference, p)

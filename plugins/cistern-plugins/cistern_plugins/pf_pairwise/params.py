@@ -19,8 +19,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from cistern_archive.pipeline.contracts import StageParams
-from cistern_plugins.registration import ConvergenceParams
+from cistern_plugins.registration import ConvergenceParams, SonarScaled
 
 
 class Section(BaseModel):
@@ -143,7 +142,7 @@ MOVED = {
 """Where each key of the former flat ``PFParams`` lives now (``section.field``)."""
 
 
-class PFParams(StageParams):
+class PFParams(SonarScaled):
     """Parameters of :class:`~cistern_plugins.pf_pairwise.PFPairwiseMatcher` (Tables I–II and Sec. IV
     of the paper), one section per step: ``filter``, ``map``, ``verify``, ``refine``, ``history``."""
 
