@@ -26,8 +26,8 @@ The verdict on a fit
     :class:`ConvergenceParams` (the limits as pydantic fields a matcher's ``Params`` can inherit; its
     ``limits()`` gives :class:`ConvergenceThresholds`); :class:`SonarScaled` (parameters whose lengths,
     the fields named ``*_m``, are written for the calibration sonar: ``p.for_scans(reference, moving)``
-    scales them by the pair's :func:`length_unit`, its bin and range over 0.08 m and 10 m (at least 1); every built-in
-    matcher's parameters do so); :func:`too_few_points` (refuse a pair before
+    scales them by the pair's :func:`length_unit`, its bin over 0.08 m or its range over 10 m, at least
+    1; every built-in matcher's parameters are so); :func:`too_few_points` (refuse a pair before
     matching); :func:`verdict` (the fixed limits: inliers, inlier share, two-direction constraint,
     free space); :func:`judge` (the calibrated model when ``limits.calibrated``, else :func:`verdict`),
     :func:`match_confidence` (the calibrated probability that the fit is right, for

@@ -1,8 +1,8 @@
 """Lengths of a matcher's parameters scaled to the sonar that took the scans.
 
 A matcher's lengths — the inlier distance, the free-space margin, the precision a fit must reach, a
-likelihood's width, a search's lattice — are written for the sonars they were tuned, calibrated and tested on:
-Micron-class heads at ranges up to 10 m with bins up to 0.08 m (:data:`CALIBRATION_RANGE_M`,
+likelihood's width, a search's lattice — are written for the sonars they were tuned, calibrated and
+tested on: Micron-class heads at ranges up to 10 m with bins up to 0.08 m (:data:`CALIBRATION_RANGE_M`,
 :data:`CALIBRATION_BIN_M`). A pair scanned with coarser bins or at a longer range sees its walls less
 sharply: a wall's echo spreads over more range, the points a sonar lays along a wall lie farther apart
 (one per beam: its range times the step), and a heading error moves a far wall farther. The same
@@ -30,8 +30,8 @@ CALIBRATION_BIN_M = 0.08
 (the physical simulator's 10 m over 250) and 0.05 m (the ideal-ray pairs); random multi-chamber sites
 with 0.08 m bins match as well with them as with them scaled by 1.6, the bin ratio to 0.05 m
 (``benchmarks/sites.py --random 40 --seed 2 --generator '{"bin_m": 0.08}'``: 338 and 337 of 347 scans
-placed, 92.3 % and 91.8 % of the pairs with half their view shared within 0.10 m; ``benchmarks/RESULTS.md``):
-the inlier distance already spans two such bins."""
+placed, 92.3 % and 91.8 % of the pairs with half their view shared within 0.10 m;
+``benchmarks/RESULTS.md``): the inlier distance already spans two such bins."""
 CALIBRATION_RANGE_M = 10.0
 """Longest range setting among those scans (the demo and random sites use 6, 8 and 10 m)."""
 
