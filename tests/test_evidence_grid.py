@@ -56,6 +56,16 @@ def test_single_beam_free_then_occupied_then_untouched():
     assert np.all(line[x < 0] == 0.0)  # behind the sonar: another bearing
 
 
+def test_echoes_not_heard_from_the_station_mark_walls_only():
+    """A moving vehicle's compensated cloud: the line from the station to an echo was no beam's, so its
+    cells gain no free evidence; the echo's cells are occupied as before."""
+    model = SonarModel(l_occ=1.0, l_free=-0.5)
+    stationary = dense_scan_map(one_beam(2.0), cell_m=0.05, model=model).log_odds
+    cloud = dense_scan_map(replace(one_beam(2.0), rays_from_station=False), cell_m=0.05, model=model).log_odds
+    assert stationary.min() == -0.5 and cloud.min() == 0.0
+    np.testing.assert_array_equal(cloud, np.maximum(stationary, 0.0))
+
+
 def test_cone_width_is_respected():
     m = dense_scan_map(one_beam(3.0, width_deg=10.0), cell_m=0.05, model=SonarModel())
     occ = np.argwhere(m.log_odds > 0)

@@ -8,7 +8,10 @@ contains the cell centre. For a beam with an echo at range ``r``:
 * cells farther than ``r + h`` are not touched (the wall hides them).
 
 A beam with no echo adds ``l_free`` up to the sonar's range when ``free_no_echo`` is set (the beam saw
-open water), and nothing otherwise. The log-odds of one scan are summed over its beams (the standard
+open water), and nothing otherwise. A scan whose echoes were not heard on beams from its station (a
+moving vehicle's motion-compensated cloud, ``RangeScan.rays_from_station`` false) adds only its
+echoes: the line from the station to an echo was no beam's, and carving it free cut the quay walls of
+the Girona marina's map with spokes of water and left its walls a thin fringe. The log-odds of one scan are summed over its beams (the standard
 independent-beam update, Thrun et al. 2005, ch. 9) and the fused grid is clamped to
 ``[clamp_min, clamp_max]`` after every scan so that a cell can change its mind.
 
@@ -179,7 +182,7 @@ def _cone_update(
         r = r_sorted[beam]
         echo = np.isfinite(r)
         r_safe = np.where(echo, r, free_no_echo_limit)
-        free = (diff <= free_half) & (rho_in < np.where(echo, r_safe - h, r_safe))
+        free = (diff <= free_half) & (rho_in < np.where(echo, r_safe - h, r_safe)) & scan.rays_from_station
         occ = (diff <= occ_half) & echo & (np.abs(rho_in - r_safe) <= h)
         out += np.where(free, np.float32(model.l_free), np.float32(0.0))
         out += np.where(occ, np.float32(model.l_occ), np.float32(0.0))
