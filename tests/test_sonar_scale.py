@@ -53,6 +53,7 @@ def test_the_length_unit_is_the_coarsest_ratio_and_never_below_one():
     assert length_unit(_Sonar(0.1, 50.0)) == pytest.approx(5.0)  # the marina's Miniking: its range decides
     assert length_unit(_Sonar(0.16, 10.0), _Sonar(0.04, 8.0)) == pytest.approx(2.0)  # coarser bins of one scan
     assert length_unit() == 1.0
+    assert length_unit(_Sonar(0.04, math.inf), _Sonar(math.nan, 20.0)) == pytest.approx(2.0)  # unknowns count 1
 
 
 def test_every_length_is_scaled_nested_sections_too_and_nothing_else():

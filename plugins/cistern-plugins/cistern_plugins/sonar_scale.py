@@ -18,6 +18,7 @@ changes.
 
 from __future__ import annotations
 
+import math
 from typing import Self
 
 from pydantic import BaseModel, Field
@@ -38,8 +39,10 @@ CALIBRATION_RANGE_M = 10.0
 
 def length_unit(*scans: RangeScan, bin_m: float = CALIBRATION_BIN_M, range_m: float = CALIBRATION_RANGE_M) -> float:
     """Metres of these scans per metre of a limit written for the calibration sonar: the largest of 1
-    and every scan's ``bin_size_m / bin_m`` and ``max_range_m / range_m``."""
-    return max([1.0] + [max(float(s.bin_size_m) / bin_m, float(s.max_range_m) / range_m) for s in scans])
+    and every scan's ``bin_size_m / bin_m`` and ``max_range_m / range_m`` (a ratio that is not a finite
+    number, from a scan that does not know its range, counts as 1)."""
+    ratios = [float(s.bin_size_m) / bin_m for s in scans] + [float(s.max_range_m) / range_m for s in scans]
+    return max([1.0] + [r for r in ratios if math.isfinite(r)])
 
 
 def scaled_lengths(model: BaseModel, unit: float) -> BaseModel:
