@@ -1,19 +1,22 @@
 """Lengths of a matcher's parameters scaled to the sonar that took the scans.
 
 A matcher's lengths — the inlier distance, the free-space margin, the precision a fit must reach, a
-likelihood's width, a search's lattice — are written for the sonars they were tuned, calibrated and
-tested on: Micron-class heads at ranges up to 10 m with bins up to 0.08 m (:data:`CALIBRATION_RANGE_M`,
-:data:`CALIBRATION_BIN_M`). A pair scanned with coarser bins or at a longer range sees its walls less
-sharply: a wall's echo spreads over more range, the points a sonar lays along a wall lie farther apart
-(one per beam: its range times the step), and a heading error moves a far wall farther. The same
-limits in metres then refuse every right match of a 50 m harbour sonar with 0.1 m bins.
+likelihood's width, a search's lattice — are written for the sonars and sites they were tuned,
+calibrated and tested on: Micron-class heads with bins up to 0.08 m in cisterns whose walls lie within
+10 m (:data:`CALIBRATION_BIN_M`, :data:`CALIBRATION_RANGE_M`). Coarser bins or farther walls are seen
+less sharply: a wall's echo spreads over more range, the points a sonar lays along a wall lie farther
+apart (one per beam: the wall's range times the step), and a heading error moves a far wall farther.
+The same limits in metres then refuse every right match of a harbour sonar hearing quays 30–50 m off
+with 0.1 m bins.
 
-:func:`length_unit` is how many metres of a pair one metre of those limits is: the larger of the bin
-ratio and the range ratio over both scans, and never less than 1 — finer settings keep the limits as
-set, since they also carry the compass's noise and the chambers' shapes, which finer bins do not
-change. :class:`SonarScaled` parameters multiply every length (a field named ``*_m``, in nested
-sections too) by it before a match. Within the calibration settings the unit is exactly 1 and nothing
-changes.
+:func:`length_unit` is how many metres of a pair one metre of those limits is: the largest of 1, each
+scan's bin over :data:`CALIBRATION_BIN_M` and the range of its farther echoes (:func:`wall_range_m`)
+over :data:`CALIBRATION_RANGE_M`. It is never less than 1 — finer settings and nearer walls keep the
+limits as set, since they also carry the compass's noise and the chambers' shapes. It follows the
+walls, not the range setting: a cistern scanned at 20 m instead of 10 m hears the same walls, and
+lengths doubled there matched it worse (``benchmarks/RESULTS.md``). :class:`SonarScaled` parameters
+multiply every length (a field named ``*_m``, in nested sections too) by it before a match. On every
+scan whose range setting is 10 m or less the unit is exactly 1 and nothing changes.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import math
 from typing import Self
 
+import numpy as np
 from pydantic import BaseModel, Field
 
 from cistern_archive.core.scan import RangeScan
@@ -34,14 +38,27 @@ with 0.08 m bins match as well with them as with them scaled by 1.6, the bin rat
 placed, 92.3 % and 91.8 % of the pairs with half their view shared within 0.10 m;
 ``benchmarks/RESULTS.md``): the inlier distance already spans two such bins."""
 CALIBRATION_RANGE_M = 10.0
-"""Longest range setting among those scans (the demo and random sites use 6, 8 and 10 m)."""
+"""Range of the farther echoes (:func:`wall_range_m`) up to which the lengths hold as set: the demo and
+random cisterns' range settings (6, 8 and 10 m) bound it; their scans' 90th percentiles reach 8.1 m
+(12 random sites of seed 2, at a 10 m or a 20 m setting alike)."""
+WALL_RANGE_PERCENTILE = 90.0
+"""The percentile of a scan's echo ranges that :func:`wall_range_m` reports: the far walls a match has to
+place, above the few ghosts and spikes beyond them."""
+
+
+def wall_range_m(scan: RangeScan) -> float:
+    """How far a scan's farther walls lie: the :data:`WALL_RANGE_PERCENTILE` of its echo ranges (0 without
+    an echo)."""
+    ranges = np.asarray(scan.ranges_m, dtype=np.float64)
+    ranges = ranges[np.isfinite(ranges)]
+    return float(np.percentile(ranges, WALL_RANGE_PERCENTILE)) if ranges.size else 0.0
 
 
 def length_unit(*scans: RangeScan, bin_m: float = CALIBRATION_BIN_M, range_m: float = CALIBRATION_RANGE_M) -> float:
     """Metres of these scans per metre of a limit written for the calibration sonar: the largest of 1
-    and every scan's ``bin_size_m / bin_m`` and ``max_range_m / range_m`` (a ratio that is not a finite
-    number, from a scan that does not know its range, counts as 1)."""
-    ratios = [float(s.bin_size_m) / bin_m for s in scans] + [float(s.max_range_m) / range_m for s in scans]
+    and every scan's ``bin_size_m / bin_m`` and ``wall_range_m(scan) / range_m`` (a bin that is not a
+    finite number counts as 1)."""
+    ratios = [float(s.bin_size_m) / bin_m for s in scans] + [wall_range_m(s) / range_m for s in scans]
     return max([1.0] + [r for r in ratios if math.isfinite(r)])
 
 
@@ -67,8 +84,9 @@ class SonarScaled(StageParams):
     to the scans of each match (:meth:`for_scans`)."""
 
     scale_to_sonar: bool = Field(True, description="multiply every length (a parameter named *_m) by the "
-                                 "pair's length unit: the largest of 1, its bin over 0.08 m and its range "
-                                 "over 10 m, the settings these lengths were set on; false: lengths in metres as given")
+                                 "pair's length unit: the largest of 1, its bin over 0.08 m and the range of "
+                                 "its farther echoes (90th percentile) over 10 m, the settings these lengths "
+                                 "were set on; false: lengths in metres as given")
 
     def for_scans(self, *scans: RangeScan) -> Self:
         """These parameters with their lengths scaled to ``scans`` (:func:`length_unit`); themselves when
