@@ -38,9 +38,10 @@ from cistern_plugins.registration import SonarScaled
 
 class GuidedCorrelativeParams(SonarScaled):
     """Parameters of :class:`GuidedCorrelativeMatcher`. Lengths are written for the calibration sonar
-    (bins up to 0.08 m, ranges up to 10 m) and scaled to each pair's
-    (:meth:`~cistern_plugins.registration.SonarScaled.for_scans`): five times these for a 50 m
-    Miniking with 0.1 m bins."""
+    and sites (bins up to 0.08 m, walls within 10 m) and scaled to each pair's
+    (:meth:`~cistern_plugins.registration.SonarScaled.for_scans`): 2.3–4.9 times these for the
+    Girona marina's clouds (their farther echoes 23–49 m off). At 5 they are the sizes this matcher
+    had in metres for that survey's Miniking."""
 
     radius_m: float = Field(0.6, gt=0)
     yaw_window_deg: float = Field(3.0, ge=0, le=45)

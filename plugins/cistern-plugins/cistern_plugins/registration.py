@@ -26,8 +26,8 @@ The verdict on a fit
     :class:`ConvergenceParams` (the limits as pydantic fields a matcher's ``Params`` can inherit; its
     ``limits()`` gives :class:`ConvergenceThresholds`); :class:`SonarScaled` (parameters whose lengths,
     the fields named ``*_m``, are written for the calibration sonar: ``p.for_scans(reference, moving)``
-    scales them by the pair's :func:`length_unit`, its bin over 0.08 m or its range over 10 m, at least
-    1; every built-in matcher's parameters are so); :func:`too_few_points` (refuse a pair before
+    scales them by the pair's :func:`length_unit`, its bin over 0.08 m or the range of its farther
+    echoes over 10 m, at least 1; every built-in matcher's parameters are so); :func:`too_few_points` (refuse a pair before
     matching); :func:`verdict` (the fixed limits: inliers, inlier share, two-direction constraint,
     free space); :func:`judge` (the calibrated model when ``limits.calibrated``, else :func:`verdict`),
     :func:`match_confidence` (the calibrated probability that the fit is right, for
@@ -77,7 +77,7 @@ from cistern_plugins.alignment import (
 )
 from cistern_plugins.closest_point import ICPOutcome, fit_covariance, refine_point_to_line, run_icp
 from cistern_plugins.guess_window import outside_window, start_pose, turn_from_start
-from cistern_plugins.sonar_scale import SonarScaled, length_unit
+from cistern_plugins.sonar_scale import SonarScaled, length_unit, wall_range_m
 from cistern_plugins.verification import judge, match_confidence, tentative_fit
 
 __all__ = [
@@ -107,4 +107,5 @@ __all__ = [
     "transform_many",
     "turn_from_start",
     "verdict",
+    "wall_range_m",
 ]
