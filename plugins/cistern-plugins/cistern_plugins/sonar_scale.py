@@ -6,7 +6,7 @@ calibrated and tested on: Micron-class heads with bins up to 0.08 m in cisterns 
 10 m (:data:`CALIBRATION_BIN_M`, :data:`CALIBRATION_RANGE_M`). Coarser bins or farther walls are seen
 less sharply: a wall's echo spreads over more range, the points a sonar lays along a wall lie farther
 apart (one per beam: the wall's range times the step), and a heading error moves a far wall farther.
-The same limits in metres then refuse every right match of a harbour sonar hearing quays 30–50 m off
+The same limits in metres then refuse every right match of a harbour sonar hearing quays 20–50 m off
 with 0.1 m bins.
 
 :func:`length_unit` is how many metres of a pair one metre of those limits is: the largest of 1, each
@@ -16,7 +16,8 @@ limits as set, since they also carry the compass's noise and the chambers' shape
 walls, not the range setting: a cistern scanned at 20 m instead of 10 m hears the same walls, and
 lengths doubled there matched it worse (``benchmarks/RESULTS.md``). :class:`SonarScaled` parameters
 multiply every length (a field named ``*_m``, in nested sections too) by it before a match. On every
-scan whose range setting is 10 m or less the unit is exactly 1 and nothing changes.
+scan with bins of 0.08 m or less at a range setting of 10 m or less the unit is exactly 1 and nothing
+changes.
 """
 
 from __future__ import annotations
