@@ -187,8 +187,8 @@ class RangeScan:
         Whether every echo was heard on a beam from the station, so that the water between the station
         and the echo was seen empty (a stationary scan). ``False`` for a cloud of echoes a moving
         vehicle heard from along its track, compensated into one frame
-        (:func:`cistern_archive.navigation.motion.compensated_range_scan`): the line from the station to an
-        echo was no beam's, and says nothing of the water on it.
+        (:func:`cistern_archive.navigation.motion.compensated_range_scan`): the line from the station to
+        an echo was no beam's, and says nothing of the water on it.
     """
 
     bearings_rad: np.ndarray

@@ -11,9 +11,9 @@ A beam with no echo adds ``l_free`` up to the sonar's range when ``free_no_echo`
 open water), and nothing otherwise. A scan whose echoes were not heard on beams from its station (a
 moving vehicle's motion-compensated cloud, ``RangeScan.rays_from_station`` false) adds only its
 echoes: the line from the station to an echo was no beam's, and carving it free cut the quay walls of
-the Girona marina's map with spokes of water and left its walls a thin fringe. The log-odds of one scan are summed over its beams (the standard
-independent-beam update, Thrun et al. 2005, ch. 9) and the fused grid is clamped to
-``[clamp_min, clamp_max]`` after every scan so that a cell can change its mind.
+the Girona marina's map with spokes of water and left its walls a thin fringe. The log-odds of one scan
+are summed over its beams (the standard independent-beam update, Thrun et al. 2005, ch. 9) and the
+fused grid is clamped to ``[clamp_min, clamp_max]`` after every scan so that a cell can change its mind.
 
 The update is computed cell-centrically: every cell of the scan's reach is visited once and tested
 against the few beams whose bearing is within half a beam width of it, which vectorises over cells.
@@ -182,9 +182,10 @@ def _cone_update(
         r = r_sorted[beam]
         echo = np.isfinite(r)
         r_safe = np.where(echo, r, free_no_echo_limit)
-        free = (diff <= free_half) & (rho_in < np.where(echo, r_safe - h, r_safe)) & scan.rays_from_station
+        if scan.rays_from_station:  # else the line to the echo was no beam's (module docstring)
+            free = (diff <= free_half) & (rho_in < np.where(echo, r_safe - h, r_safe))
+            out += np.where(free, np.float32(model.l_free), np.float32(0.0))
         occ = (diff <= occ_half) & echo & (np.abs(rho_in - r_safe) <= h)
-        out += np.where(free, np.float32(model.l_free), np.float32(0.0))
         out += np.where(occ, np.float32(model.l_occ), np.float32(0.0))
     delta = np.zeros(rho.shape, dtype=np.float32)
     delta[inside] = out
