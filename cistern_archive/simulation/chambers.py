@@ -51,7 +51,7 @@ from cistern_archive.simulation.output import write_site
 from cistern_archive.simulation.simulator import simulate_site
 from cistern_archive.simulation.spec import load_spec
 from cistern_archive.sonar.geometry import contains, edges_of
-from cistern_archive.simulation.spec import SimulationSpec
+from cistern_archive.simulation.spec import EffectsSpec, SimulationSpec, SonarSpec
 
 ROOM_M = (2.5, 8.0)
 TUNNEL_WIDTH_M = (0.8, 1.2)
@@ -107,6 +107,8 @@ class GeneratorSettings(BaseModel):
     station_order: Literal["visit", "label", "shuffled"] = Field(
         "visit", description="the order the record lists its stations in: as visited, sorted by label, or "
                              "shuffled; the scans' times keep the order of the visits")
+    scale: float = Field(1.0, gt=0, description="every horizontal length of the site this many times as large "
+                         "(see scaled_spec): a larger site surveyed at a longer range with coarser bins")
 
     @model_validator(mode="after")
     def _ranges_ordered(self) -> "GeneratorSettings":
@@ -553,7 +555,34 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
                         "repeats": 5, "spacing_m": 0.2},
         }],
     }
+    if settings.scale != 1.0:
+        spec = scaled_spec(spec, settings.scale)
     return GeneratedCistern(SimulationSpec.model_validate(spec), layout, planned)
+
+
+def scaled_spec(spec: dict, scale: float) -> dict:
+    """A random cistern's spec with every horizontal length ``scale`` times as large: its walls and pillars,
+    its stations and reference probe, the sonar's range (with as many bins, so each is ``scale`` times as
+    long) and pulse, and the extra path of its ghosts. The vehicle's own echoes (ring-down, near field,
+    hull), the beam's angles, the compass and the depths are what they were: a larger site — a reservoir,
+    a flooded quarry — surveyed by the same vehicle at a longer range setting."""
+    site, sonar, effects = dict(spec["site"]), dict(spec["sonar"]), dict(spec["effects"])
+
+    def ring(polygon: list) -> list:
+        return [[_round(scale * x), _round(scale * y)] for x, y in polygon]
+
+    site["levels"] = [{**level, "walls": {"polygon": ring(level["walls"]["polygon"])},
+                       **({"islands": [{"polygon": ring(i["polygon"])} for i in level["islands"]]}
+                          if "islands" in level else {})} for level in site["levels"]]
+    sonar["range_m"] = _round(scale * sonar["range_m"])
+    sonar["pulse_length_m"] = _round(scale * sonar.get("pulse_length_m", SonarSpec().pulse_length_m), 4)
+    extra = effects.get("multipath_extra_m", EffectsSpec().multipath_extra_m)
+    effects["multipath_extra_m"] = (_round(scale * extra[0]), _round(scale * extra[1]))
+    stations = [{**s, "x_m": _round(scale * s["x_m"]), "y_m": _round(scale * s["y_m"])} for s in spec["stations"]]
+    references = [{**r, "measure": {**r["measure"], "inside": [_round(scale * v) for v in r["measure"]["inside"]],
+                                    "spacing_m": _round(scale * r["measure"]["spacing_m"])}}
+                  for r in spec["references"]]
+    return {**spec, "site": site, "sonar": sonar, "effects": effects, "stations": stations, "references": references}
 
 
 def random_cisterns(n: int, seed: int, settings: GeneratorSettings | None = None) -> list[GeneratedCistern]:
