@@ -107,8 +107,9 @@ class GeneratorSettings(BaseModel):
     station_order: Literal["visit", "label", "shuffled"] = Field(
         "visit", description="the order the record lists its stations in: as visited, sorted by label, or "
                              "shuffled; the scans' times keep the order of the visits")
-    scale: float = Field(1.0, gt=0, description="every horizontal length of the site this many times as large "
-                         "(see scaled_spec): a larger site surveyed at a longer range with coarser bins")
+    scale: float = Field(1.0, gt=0, description="every length of the site this many times as large, heard as "
+                         "well at every place (scaled_spec): the same site at another size, surveyed at a "
+                         "longer range with coarser bins")
 
     @model_validator(mode="after")
     def _ranges_ordered(self) -> "GeneratorSettings":
@@ -561,24 +562,42 @@ def random_cistern(rng: np.random.Generator, index: int = 0, *, chambers: int | 
 
 
 def scaled_spec(spec: dict, scale: float) -> dict:
-    """A random cistern's spec with every horizontal length ``scale`` times as large: its walls and pillars,
-    its stations and reference probe, the sonar's range (with as many bins, so each is ``scale`` times as
-    long) and pulse, and the extra path of its ghosts. The vehicle's own echoes (ring-down, near field,
-    hull), the beam's angles, the compass and the depths are what they were: a larger site — a reservoir,
-    a flooded quarry — surveyed by the same vehicle at a longer range setting."""
-    site, sonar, effects = dict(spec["site"]), dict(spec["sonar"]), dict(spec["effects"])
+    """A random cistern's spec ``scale`` times as large in every length, heard as well at every place.
+
+    Its walls, pillars and depths, its stations and reference probe, the sonar's range (with as many
+    bins, so each is ``scale`` times as long), pulse and TVG knee, and the extra path of its ghosts are
+    multiplied by ``scale``; absorption is divided by it, so an echo loses as much on its way as it did.
+    Spreading still grows with ``log10(scale)``: the receiver's noise is lowered by the spreading's
+    ``n_s log10(scale)`` and every level set after the TVG (background, floor, the vehicle's own echoes,
+    the A/D window's low end) moves with the echoes by ``(n_t - n_s) log10(scale)``, so each bin's counts
+    at a place ``scale`` times as far are drawn as at the original place. The vehicle's own echoes keep
+    their ranges, the beam its angles, the compass its noise. Whatever a site so drawn is placed worse
+    than the original is owed to lengths fixed in metres somewhere in the pipeline.
+    """
+    sonar_spec, effects_spec = SonarSpec(**spec["sonar"]), EffectsSpec(**spec["effects"])
+    decades = math.log10(scale)
+    shift = (sonar_spec.tvg_exponent - sonar_spec.spreading_exponent) * decades
 
     def ring(polygon: list) -> list:
         return [[_round(scale * x), _round(scale * y)] for x, y in polygon]
 
-    site["levels"] = [{**level, "walls": {"polygon": ring(level["walls"]["polygon"])},
-                       **({"islands": [{"polygon": ring(i["polygon"])} for i in level["islands"]]}
-                          if "islands" in level else {})} for level in site["levels"]]
-    sonar["range_m"] = _round(scale * sonar["range_m"])
-    sonar["pulse_length_m"] = _round(scale * sonar.get("pulse_length_m", SonarSpec().pulse_length_m), 4)
-    extra = effects.get("multipath_extra_m", EffectsSpec().multipath_extra_m)
-    effects["multipath_extra_m"] = (_round(scale * extra[0]), _round(scale * extra[1]))
-    stations = [{**s, "x_m": _round(scale * s["x_m"]), "y_m": _round(scale * s["y_m"])} for s in spec["stations"]]
+    levels = [{**level, "walls": {"polygon": ring(level["walls"]["polygon"])},
+               **({"islands": [{"polygon": ring(i["polygon"])} for i in level["islands"]]} if "islands" in level else {})}
+              for level in spec["site"]["levels"]]
+    site = {**spec["site"], "levels": levels, "water_depth_m": _round(scale * spec["site"]["water_depth_m"], 2)}
+    sonar = {**spec["sonar"], "range_m": _round(scale * sonar_spec.range_m),
+             "pulse_length_m": _round(scale * sonar_spec.pulse_length_m, 4),
+             "tvg_min_range_m": _round(scale * sonar_spec.tvg_min_range_m, 4),
+             "absorption_db_per_m": sonar_spec.absorption_db_per_m / scale,
+             "tvg_absorption_db_per_m": sonar_spec.tvg_absorption_db_per_m / scale,
+             "ad_low_db": sonar_spec.ad_low_db + shift}
+    effects = {**spec["effects"],
+               "multipath_extra_m": tuple(_round(scale * v) for v in effects_spec.multipath_extra_m),
+               "noise_db": effects_spec.noise_db - sonar_spec.spreading_exponent * decades,
+               **{name: getattr(effects_spec, name) + shift
+                  for name in ("background_db", "floor_db", "self_echo_db", "near_field_db", "vehicle_echo_db")}}
+    stations = [{**s, "x_m": _round(scale * s["x_m"]), "y_m": _round(scale * s["y_m"]),
+                 "depth_m": _round(scale * s["depth_m"])} for s in spec["stations"]]
     references = [{**r, "measure": {**r["measure"], "inside": [_round(scale * v) for v in r["measure"]["inside"]],
                                     "spacing_m": _round(scale * r["measure"]["spacing_m"])}}
                   for r in spec["references"]]
