@@ -99,7 +99,7 @@ from cistern_archive.pipeline.runner import build_site, match_pair, record_ties,
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction, shared_wall_fraction  # noqa: E402
 from cistern_archive.simulation.chambers import GeneratorSettings, random_cisterns, simulate_into, write_specs  # noqa: E402
 from cistern_archive.simulation.spec import load_spec  # noqa: E402
-from cistern_plugins.registration import ConvergenceThresholds, ReferenceModel  # noqa: E402
+from cistern_plugins.registration import ConvergenceParams, ReferenceModel  # noqa: E402
 
 
 def with_stage(loaded, stage: str, name: str | None = None, params: dict | None = None):
@@ -183,9 +183,10 @@ class SiteTruth:
 
 def shared_wall_pairs(truth: SiteTruth, scans) -> list[tuple[int, int]]:
     """The pairs (one depth level, within sonar range) that share at least the verification's
-    ``min_inliers`` wall points at their true relative pose (:meth:`ReferenceModel.assess_pair`): a pair
-    below that minimum cannot pass any built-in matcher's verification, whatever it estimates."""
-    limits = ConvergenceThresholds()
+    ``min_inliers`` wall points at their true relative pose (:meth:`ReferenceModel.assess_pair`, with
+    the limits scaled to the pair's sonar as the matchers scale them): a pair below that minimum cannot
+    pass any built-in matcher's verification, whatever it estimates."""
+    params = ConvergenceParams()
     models: dict[int, ReferenceModel] = {}
     out = []
     for a, b in combinations(range(len(scans)), 2):
@@ -194,6 +195,7 @@ def shared_wall_pairs(truth: SiteTruth, scans) -> list[tuple[int, int]]:
             continue
         if a not in models:
             models[a] = ReferenceModel(scans[a])
+        limits = params.for_scans(scans[a], scans[b]).limits()
         if models[a].assess_pair(scans[b], truth.true_pose(a, b), limits).inliers >= limits.min_inliers:
             out.append((a, b))
     return out

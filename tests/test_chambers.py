@@ -14,7 +14,7 @@ import pytest
 
 from cistern_archive.evaluation import wilson_interval
 from cistern_archive.sonar.geometry import contains, ray_cast
-from cistern_archive.simulation.simulator import station_poses
+from cistern_archive.simulation.simulator import simulate_site, station_poses
 from cistern_archive.simulation.spec import SimulationSpec, load_spec
 from cistern_archive.simulation.chambers import (
     OPENING_INSET_M,
@@ -240,6 +240,23 @@ def test_settings_set_the_sonar_and_its_other_effects():
         sonar, effects = cistern.spec.sonar, cistern.spec.effects
         assert sonar.step_deg == 1.8 and sonar.beam_width_deg == 4.0 and effects.speckle_looks == 1.0
         assert sonar.range_m / sonar.bins == pytest.approx(0.08)
+
+
+def test_a_scaled_site_is_the_same_site_larger_and_heard_as_well():
+    small, large = (random_cistern(np.random.default_rng(3), settings=GeneratorSettings(scale=k)) for k in (1.0, 3.0))
+    walls = [np.array(c.spec.site.levels[0].walls.polygon) for c in (small, large)]
+    assert np.allclose(walls[1], 3.0 * walls[0], atol=0.003)
+    places = [np.array([[s.x_m, s.y_m, s.depth_m] for s in c.spec.stations]) for c in (small, large)]
+    assert np.allclose(places[1], 3.0 * places[0], atol=0.003)
+    assert large.spec.site.water_depth_m == pytest.approx(3.0 * small.spec.site.water_depth_m, abs=0.01)
+    assert large.spec.sonar.range_m == pytest.approx(3.0 * small.spec.sonar.range_m)
+    assert large.spec.sonar.bins == small.spec.sonar.bins
+    # the same draws at places three times as far give the same counts, walls among them, beyond the
+    # vehicle's own echoes and near-field reverberation, which keep their ranges (2.6 m of the small site)
+    scans = [simulate_site(c.spec).scans[0].scan for c in (small, large)]
+    counts = [np.asarray(s.intensities, dtype=np.int64)[:, 65:] for s in scans]
+    assert (counts[0] > 100).sum() > 500
+    assert np.mean(np.abs(counts[1] - counts[0]) <= 2) > 0.99
 
 
 def test_settings_set_the_compass_and_the_clutter_and_refuse_bad_ranges():

@@ -51,11 +51,12 @@ class _Sonar:
 
 
 def test_the_length_unit_follows_the_bins_and_the_walls_and_is_never_below_one():
-    assert length_unit(_Sonar(0.04, 2.0, 8.0), _Sonar(0.08, 10.0)) == 1.0  # the calibration settings
+    assert length_unit(_Sonar(0.04, 2.0, 8.0), _Sonar(0.05, 10.0)) == 1.0  # the calibration settings
     assert length_unit(_Sonar(0.02, 3.0)) == 1.0  # finer bins, nearer walls: the limits as set
     assert length_unit(_Sonar(0.1, 50.0, max_range_m=50.0)) == pytest.approx(5.0)  # quays 50 m off
     assert length_unit(_Sonar(0.04, 4.0, max_range_m=20.0)) == 1.0  # a long setting, the same near walls
-    assert length_unit(_Sonar(0.16, 3.0), _Sonar(0.04, 3.0)) == pytest.approx(2.0)  # coarser bins of one scan
+    assert length_unit(_Sonar(0.16, 3.0), _Sonar(0.04, 3.0)) == pytest.approx(3.2)  # coarser bins of one scan
+    assert length_unit(_Sonar(0.12, 12.0)) == pytest.approx(2.4)  # a cistern three times as large: its bins
     ghosts = _Sonar(0.04, *([20.0] * 95 + [80.0] * 5), max_range_m=100.0)
     assert length_unit(ghosts) == pytest.approx(2.0)  # the 90th percentile: walls, not the ghosts beyond
     assert length_unit() == 1.0 and length_unit(_Sonar(0.04)) == 1.0  # no scan, no echo

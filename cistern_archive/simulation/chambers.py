@@ -27,8 +27,9 @@ vehicle echo, on by default; walls of roughness 0.03–0.3; range 6, 8 or 10 m i
 steps); the compass has a bias of up to ±2° and 2° of noise. The records carry the true poses
 (``truth``), as the demo specs' records do. :class:`GeneratorSettings` changes the tunnels' length and
 width, how a tunnel is surveyed, the compass, the clutter and the sonar (its bin, its step and any other
-setting of the simulator), the stations' depths and the order the record lists them in, and stands
-pillars in the chambers, for studies of sites unlike these.
+setting of the simulator), the stations' depths and the order the record lists them in, stands
+pillars in the chambers, and draws a whole site larger, heard as well (``scale``, :func:`scaled_spec`),
+for studies of sites unlike these.
 
 >>> cistern = random_cistern(np.random.default_rng(1), index=0)   # doctest: +SKIP
 >>> site = simulate_site(cistern.spec)                            # doctest: +SKIP
