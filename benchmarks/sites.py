@@ -9,7 +9,8 @@ Two sources of sites:
   records by the simulator's writer, as ``cistern-archive simulate`` does) and built from there.
   ``--generator JSON`` draws them with other settings
   (:class:`~cistern_archive.simulation.chambers.GeneratorSettings`: longer tunnels, tunnels surveyed
-  with a station every metre or two, another compass, more clutter).
+  with a station every metre or two, another compass, more clutter, the whole site larger:
+  ``{"scale": 3.0}``).
 
 Each site is built by the pipeline runner (:func:`cistern_archive.pipeline.runner.build_site`) with the
 record's plugins (the defaults unless the record names others, or ``--localizer`` and ``--matcher``),
