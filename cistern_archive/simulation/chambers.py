@@ -50,9 +50,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cistern_archive.simulation.output import write_site
 from cistern_archive.simulation.simulator import simulate_site
-from cistern_archive.simulation.spec import load_spec
+from cistern_archive.simulation.spec import EffectsSpec, SimulationSpec, SonarSpec, load_spec
 from cistern_archive.sonar.geometry import contains, edges_of
-from cistern_archive.simulation.spec import EffectsSpec, SimulationSpec, SonarSpec
 
 ROOM_M = (2.5, 8.0)
 TUNNEL_WIDTH_M = (0.8, 1.2)
@@ -579,13 +578,15 @@ def scaled_spec(spec: dict, scale: float) -> dict:
     decades = math.log10(scale)
     shift = (sonar_spec.tvg_exponent - sonar_spec.spreading_exponent) * decades
 
-    def ring(polygon: list) -> list:
-        return [[_round(scale * x), _round(scale * y)] for x, y in polygon]
+    def ring(shape: dict) -> dict:
+        return {"polygon": [[_round(scale * x), _round(scale * y)] for x, y in shape["polygon"]]}
 
-    levels = [{**level, "walls": {"polygon": ring(level["walls"]["polygon"])},
-               **({"islands": [{"polygon": ring(i["polygon"])} for i in level["islands"]]} if "islands" in level else {})}
-              for level in spec["site"]["levels"]]
-    site = {**spec["site"], "levels": levels, "water_depth_m": _round(scale * spec["site"]["water_depth_m"], 2)}
+    def level(given: dict) -> dict:
+        islands = {"islands": [ring(i) for i in given["islands"]]} if "islands" in given else {}
+        return {**given, "walls": ring(given["walls"]), **islands}
+
+    site = {**spec["site"], "levels": [level(given) for given in spec["site"]["levels"]],
+            "water_depth_m": _round(scale * spec["site"]["water_depth_m"], 2)}
     sonar = {**spec["sonar"], "range_m": _round(scale * sonar_spec.range_m),
              "pulse_length_m": _round(scale * sonar_spec.pulse_length_m, 4),
              "tvg_min_range_m": _round(scale * sonar_spec.tvg_min_range_m, 4),

@@ -38,7 +38,7 @@ from cistern_plugins.registration import SonarScaled
 
 class GuidedCorrelativeParams(SonarScaled):
     """Parameters of :class:`GuidedCorrelativeMatcher`. Lengths are written for the calibration sonar
-    and sites (bins up to 0.08 m, walls within 10 m) and scaled to each pair's
+    and sites (bins of 0.04–0.05 m, walls within 10 m) and scaled to each pair's
     (:meth:`~cistern_plugins.registration.SonarScaled.for_scans`): 2.3–4.9 times these for the
     Girona marina's clouds (their farther echoes 23–49 m off). At 5 they are the sizes this matcher
     had in metres for that survey's Miniking."""

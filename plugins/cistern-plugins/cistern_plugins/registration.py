@@ -27,8 +27,8 @@ The verdict on a fit
     ``limits()`` gives :class:`ConvergenceThresholds`); :class:`SonarScaled` (parameters whose lengths,
     the fields named ``*_m``, are written for the calibration sonar: ``p.for_scans(reference, moving)``
     scales them by the pair's :func:`length_unit`, its bin over 0.05 m or the range of its farther
-    echoes over 10 m, at least 1; every built-in matcher's parameters are so); :func:`too_few_points` (refuse a pair before
-    matching); :func:`verdict` (the fixed limits: inliers, inlier share, two-direction constraint,
+    echoes over 10 m, at least 1; every built-in matcher's parameters are so); :func:`too_few_points`
+    (refuse a pair before matching); :func:`verdict` (the fixed limits: inliers, inlier share, two-direction constraint,
     free space); :func:`judge` (the calibrated model when ``limits.calibrated``, else :func:`verdict`),
     :func:`match_confidence` (the calibrated probability that the fit is right, for
     ``MatchResult.confidence``) and :func:`tentative_fit` (whether a refused fit may be offered as

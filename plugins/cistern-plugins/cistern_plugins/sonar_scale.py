@@ -4,10 +4,10 @@ A matcher's lengths — the inlier distance, the free-space margin, the precisio
 likelihood's width, a search's lattice — are written for the sonars and sites they were tuned,
 calibrated and tested on: Micron-class heads with bins of 0.04–0.05 m in cisterns whose walls lie
 within 10 m (:data:`CALIBRATION_BIN_M`, :data:`CALIBRATION_RANGE_M`). Coarser bins or farther walls
-are seen less sharply: a wall's echo spreads over more range, the points a sonar lays along a wall lie farther
-apart (one per beam: the wall's range times the step), and a heading error moves a far wall farther.
-The same limits in metres then refuse every right match of a harbour sonar hearing quays 20–50 m off
-with 0.1 m bins.
+are seen less sharply: a wall's echo spreads over more range, the points a sonar lays along a wall lie
+farther apart (one per beam: the wall's range times the step), and a heading error moves a far wall
+farther. The same limits in metres then refuse every right match of a harbour sonar hearing quays
+20–50 m off with 0.1 m bins.
 
 :func:`length_unit` is how many metres of a pair one metre of those limits is: the largest of 1, each
 scan's bin over :data:`CALIBRATION_BIN_M` and the range of its farther echoes (:func:`wall_range_m`)
@@ -34,9 +34,10 @@ from cistern_archive.pipeline.contracts import StageParams
 CALIBRATION_BIN_M = 0.05
 """Coarsest range bin the built-in matchers' lengths were set on: 0.04 m (the physical simulator's 10 m
 over 250) and 0.05 m (the ideal-ray pairs). Random cisterns drawn three times as large in every length
-(``benchmarks/sites.py --random 20 --seed 2 --generator '{"scale": 3.0}'``, 0.12 m bins) matched 85.2 % of their pairs with half their view shared within 0.10 m with this reference
-against 76.7 % with 0.08 m, and 87.1 % with every length tripled; random cisterns of the usual size with
-0.08 m bins, 92.3 and 91.8 % unscaled and scaled by 1.6 (``--generator '{"bin_m": 0.08}'``, seed 2;
+(``benchmarks/sites.py --random 20 --seed 2 --generator '{"scale": 3.0}'``, 0.12 m bins) matched
+85.2 % of their pairs with half their view shared within 0.10 m with this reference against 76.7 %
+with 0.08 m, and 87.1 % with every length tripled; random cisterns of the usual size with 0.08 m bins,
+92.3 and 91.8 % unscaled and scaled by 1.6 (``--generator '{"bin_m": 0.08}'``, seed 2;
 ``benchmarks/RESULTS.md``)."""
 CALIBRATION_RANGE_M = 10.0
 """Range of the farther echoes (:func:`wall_range_m`) up to which the lengths hold as set: the demo and
