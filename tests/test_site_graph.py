@@ -248,18 +248,17 @@ def test_a_join_that_puts_walls_into_water_other_scans_saw_is_refused():
     assert check.conflict(graph, 0, 2, z) == ""
 
 
-def test_the_wall_check_by_shares_alone_refuses_the_same_join(monkeypatch):
+def test_the_wall_check_by_shares_alone_refuses_the_same_join():
     """Without the stretch tests (limits longer than any wall, for one pair and for pairs apart), the
     median share of wall points in the other scans' free space refuses the same look-alike join."""
     from dataclasses import replace
 
     from cistern_archive.grid.polygon import rectangle
-    from cistern_plugins import site_groups
 
     long_room, short_room = [rectangle(8.0, 3.0, centre=(4.0, 1.5))], [rectangle(4.0, 3.0, centre=(2.0, 1.5))]
     check, graph, z = look_alike_join([long_room] * 2 + [short_room] * 2)
     check.limits = replace(check.limits, max_violation_run_m=100.0)
-    monkeypatch.setattr(site_groups, "CORROBORATED_RUN_M", 100.0)
+    check.corroborated_run_m = 100.0
     assert "free space" in check.conflict(graph, 0, 2, z)
     assert check.conflict(graph, 0, 2, z, shares_too=False) == ""
 

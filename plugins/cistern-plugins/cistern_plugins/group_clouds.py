@@ -1,7 +1,12 @@
 """The evidence a group of placed scans holds, for fitting one group to another
 (:mod:`cistern_plugins.group_fit`): its wall points with the normal of their wall turned towards the
 sonar that heard them, the water its sonars saw, and both rasterised per wall orientation as
-likelihood fields with the free-space penalty."""
+likelihood fields with the free-space penalty.
+
+Every length below is written for the calibration sonar (:mod:`cistern_plugins.sonar_scale`) and taken
+``unit`` times as long for a site whose scans are (:func:`~cistern_plugins.sonar_scale.site_length_unit`):
+a wall 15 m off at 0.12 m bins is traced, bordered and kept from a station as one 5 m off at 0.04 m
+bins."""
 
 from __future__ import annotations
 
@@ -45,16 +50,18 @@ grazes at a corner, and would score a diagonal wall higher than the same wall se
 
 
 class Cloud:
-    """The walls and the water of a set of scans placed in one frame."""
+    """The walls and the water of a set of scans placed in one frame, with the lengths of the module taken
+    ``unit`` times as long."""
 
-    def __init__(self, scans: Sequence[RangeScan], poses: Sequence[np.ndarray]):
+    def __init__(self, scans: Sequence[RangeScan], poses: Sequence[np.ndarray], unit: float = 1.0):
         points, normals = [], []
+        self.unit = unit
         self.frees: list[tuple[FreeSpace, np.ndarray]] = []
         for scan, pose in zip(scans, poses):
             p = scan_points(scan)
             n = facing_normals(p)
-            ends, end_normals = wall_ends(scan, p, n)
-            p, n = wall_trace(p, n)
+            ends, end_normals = wall_ends(scan, p, n, unit)
+            p, n = wall_trace(p, n, unit)
             p, n = np.vstack([p, ends]), np.vstack([n, end_normals])
             points.append(transform(p, pose))
             normals.append(rotate(n, pose[2]) if len(n) else n)
@@ -76,8 +83,8 @@ class Cloud:
         normals = np.column_stack([np.cos(centres), np.sin(centres)])
         for free, pose in self.frees:
             rel = xy - pose[:2]
-            out[:, np.hypot(rel[:, 0], rel[:, 1]) < STATION_RADIUS_M] = True
-            seen = free.in_free_space(rotate(rel, -pose[2]), FREE_MARGIN_M)
+            out[:, np.hypot(rel[:, 0], rel[:, 1]) < STATION_RADIUS_M * self.unit] = True
+            seen = free.in_free_space(rotate(rel, -pose[2]), FREE_MARGIN_M * self.unit)
             if not seen.any():
                 continue
             rays = rel[seen] / np.maximum(np.hypot(rel[seen, 0], rel[seen, 1]), 1e-9)[:, None]
@@ -106,14 +113,15 @@ def runs(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return which, np.arange(len(which)) - (np.cumsum(counts) - counts)[which] + 1
 
 
-def wall_trace(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wall_trace(points: np.ndarray, normals: np.ndarray, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """A scan's wall points (beam order) with the wall traced between consecutive echoes no farther
     apart than :data:`TRACE_GAP_M`, every :data:`TRACE_SPACING_M`, and their normals interpolated.
 
     The fits score walls by the cells they cover. Echoes lie a beam step apart, ``r * step`` face on
     and more obliquely: at the Micron's 1.8° steps a wall 5 m off is a point every 0.16 m or more,
     which covers one cell in two of the search's 0.1 m grid, at 0.9° steps every cell; traced, the same
-    wall covers the same cells whatever the head's step. ``points`` are relative to their sonar.
+    wall covers the same cells whatever the head's step. ``points`` are relative to their sonar; both
+    lengths are taken ``unit`` times as long.
     """
     if len(points) < 2:
         return points, normals
@@ -121,8 +129,8 @@ def wall_trace(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.
     length = np.hypot(chord[:, 0], chord[:, 1])
     step = median_step(np.arctan2(points[:, 1], points[:, 0]))
     reach = 0.5 * (np.hypot(*points[1:].T) + np.hypot(*points[:-1].T))
-    joined = length <= np.maximum(TRACE_GAP_M, reach * step / math.sin(math.radians(GRAZING_DEG)))
-    steps = np.where(joined, np.floor(length / TRACE_SPACING_M).astype(np.int64), 0)
+    joined = length <= np.maximum(TRACE_GAP_M * unit, reach * step / math.sin(math.radians(GRAZING_DEG)))
+    steps = np.where(joined, np.floor(length / (TRACE_SPACING_M * unit)).astype(np.int64), 0)
     if not steps.any():
         return points, normals
     seg, place = runs(steps)
@@ -133,7 +141,8 @@ def wall_trace(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.
     return np.vstack([points, filled]), np.vstack([normals, blend])
 
 
-def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray, unit: float = 1.0
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Each wall a scan heard traced on past its last echo, halfway to where the next beam would have met
     it, every :data:`TRACE_SPACING_M` (at most :data:`WALL_END_REACH_M`), with its normal.
 
@@ -149,10 +158,11 @@ def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple
     beam heard nothing or something beyond the wall's line (not a wall in front of it, which hides
     where this one goes on), and the gap is at most :data:`WALL_END_GAP_M`. ``points`` (beam order, as
     :func:`~cistern_plugins.alignment.scan_points` gives them) and their ``normals`` are relative to the
-    sonar."""
+    sonar; the module's lengths are taken ``unit`` times as long."""
     valid = np.flatnonzero(scan.valid)
     if len(valid) < 2 or WALL_END_REACH_M <= 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
+    on_wall, end_gap, spacing = ON_WALL_M * unit, WALL_END_GAP_M * unit, TRACE_SPACING_M * unit
     bearings = scan.bearings_rad
     step = median_step(bearings)
     heard = np.full(len(bearings), np.inf)  # a beam that heard nothing passed every wall
@@ -166,16 +176,16 @@ def wall_ends(scan: RangeScan, points: np.ndarray, normals: np.ndarray) -> tuple
         ray = np.column_stack([np.cos(angle), np.sin(angle)])
         facing = np.einsum("ij,ij->i", normals, ray)
         ok = ((np.abs(wrap_angle(bearings[beam] - bearings[valid])) <= 1.5 * step)  # a neighbour
-              & (np.abs(np.einsum("ij,ij->i", normals, chord)) <= ON_WALL_M)  # a wall of two echoes
-              & (np.hypot(chord[:, 0], chord[:, 1]) <= WALL_END_GAP_M) & (facing < 0))
+              & (np.abs(np.einsum("ij,ij->i", normals, chord)) <= on_wall)  # a wall of two echoes
+              & (np.hypot(chord[:, 0], chord[:, 1]) <= end_gap) & (facing < 0))
         t = np.einsum("ij,ij->i", normals, points) / np.where(ok, facing, -1.0)
         beyond = t[:, None] * ray - points  # from the last echo to the next beam's crossing of the wall
         gap = np.hypot(beyond[:, 0], beyond[:, 1])
-        ok &= (heard[beam] > t + ON_WALL_M) & (gap > 0) & (gap <= WALL_END_GAP_M)
-        reach = np.minimum(0.5 * gap, WALL_END_REACH_M)  # halfway to the crossing: where the end lies on average
-        count = np.where(ok, np.floor_divide(reach, TRACE_SPACING_M), 0).astype(np.int64)
+        ok &= (heard[beam] > t + on_wall) & (gap > 0) & (gap <= end_gap)
+        reach = np.minimum(0.5 * gap, WALL_END_REACH_M * unit)  # halfway to the crossing: where the end lies on average
+        count = np.where(ok, np.floor_divide(reach, spacing), 0).astype(np.int64)
         which, place = runs(count)
-        along = place * TRACE_SPACING_M
+        along = place * spacing
         ends.append(points[which] + along[:, None] * beyond[which] / gap[which, None])
         end_normals.append(normals[which])
     return np.vstack(ends), np.vstack(end_normals)
@@ -234,10 +244,10 @@ class Raster:
         return out
 
 
-def bounds(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, tuple[int, int]]:
-    """Grid origin and shape (rows, cols) covering points with a border."""
-    lo = points.min(axis=0) - BORDER_M
-    hi = points.max(axis=0) + BORDER_M
+def bounds(points: np.ndarray, cell_m: float, unit: float = 1.0) -> tuple[np.ndarray, tuple[int, int]]:
+    """Grid origin and shape (rows, cols) covering points with a border of ``BORDER_M * unit``."""
+    lo = points.min(axis=0) - BORDER_M * unit
+    hi = points.max(axis=0) + BORDER_M * unit
     size = np.ceil((hi - lo) / cell_m).astype(np.int64) + 1
     return lo, (int(size[1]), int(size[0]))
 
@@ -254,11 +264,12 @@ def wall_spread(cloud: Cloud) -> float:
     return moment_spread(cloud.normals.T @ cloud.normals, len(cloud.normals))
 
 
-def normal_moment(scan: RangeScan) -> tuple[np.ndarray, int]:
-    """The sum of ``n n^T`` over one scan's traced wall normals (in its own frame) and their number: what
-    :func:`placed_spread` adds up for a group of placed scans without building its :class:`Cloud`."""
+def normal_moment(scan: RangeScan, unit: float = 1.0) -> tuple[np.ndarray, int]:
+    """The sum of ``n n^T`` over one scan's traced wall normals (in its own frame, traced at ``unit``) and
+    their number: what :func:`placed_spread` adds up for a group of placed scans without building its
+    :class:`Cloud`."""
     p = scan_points(scan)
-    _, n = wall_trace(p, facing_normals(p))
+    _, n = wall_trace(p, facing_normals(p), unit)
     return (n.T @ n if len(n) else np.zeros((2, 2))), len(n)
 
 

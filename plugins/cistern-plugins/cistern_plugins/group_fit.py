@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import fft
@@ -72,7 +72,14 @@ POLISH_TOLERANCE = 1.0
 
 @dataclass(frozen=True)
 class GroupFitSettings:
-    """The search's settings (site-graph's ``group_*`` parameters)."""
+    """The search's settings (site-graph's ``group_*`` parameters).
+
+    Its lengths (``cell_m``, ``sigma_m``, ``separation_m``) and the module's (the refinement's reach, the
+    covariance's probes, :data:`PROFILE_FROM_M`, :data:`PROFILE_STEPS_M`, :data:`OUTLYING_M`, the clouds'
+    border) are written for the calibration sonar; ``unit`` is how many metres of the site one of them
+    is (:meth:`at_unit`, :func:`~cistern_plugins.sonar_scale.site_length_unit`). Scores count cells, so
+    a site ``unit`` times as large scores as the calibration site did.
+    """
 
     cell_m: float = 0.1
     sigma_m: float = 0.1
@@ -87,6 +94,14 @@ class GroupFitSettings:
     separation_m: float = 0.5
     rivals: int = 4
     rival_free_penalty: float = 20.0
+    unit: float = 1.0
+
+    def at_unit(self, unit: float) -> "GroupFitSettings":
+        """These settings with their lengths ``unit`` times as long (itself when ``unit`` is 1)."""
+        if unit == 1.0:
+            return self
+        return replace(self, cell_m=self.cell_m * unit, sigma_m=self.sigma_m * unit,
+                       separation_m=self.separation_m * unit, unit=self.unit * unit)
 
 
 @dataclass(frozen=True)
@@ -139,8 +154,8 @@ def coarse_scores(a: Cloud, b: Cloud, s: GroupFitSettings) -> tuple[np.ndarray, 
     """``S`` on the coarse grid of every yaw of the window: (scores (Y, H, W), yaws, A's grid origin,
     B's grid origin, A's grid shape); translation index ``k`` is ``t = k * cell + lo_A - lo_B``, with
     ``k`` from ``-(B's side - 1)`` to A's shape less one, negative ones wrapped."""
-    lo_a, shape_a = bounds(a.points, s.cell_m)
-    reach = float(np.hypot(b.points[:, 0], b.points[:, 1]).max()) + BORDER_M
+    lo_a, shape_a = bounds(a.points, s.cell_m, s.unit)
+    reach = float(np.hypot(b.points[:, 0], b.points[:, 1]).max()) + BORDER_M * s.unit
     lo_b = np.array([-reach, -reach])
     side = int(math.ceil(2 * reach / s.cell_m)) + 1
     shape_b = (side, side)
@@ -185,8 +200,8 @@ class FineScore:
 
     def __init__(self, a: Cloud, b: Cloud, s: GroupFitSettings):
         fine = 0.5 * s.cell_m
-        lo_a, shape_a = bounds(a.points, fine)
-        lo_b, shape_b = bounds(b.points, fine)
+        lo_a, shape_a = bounds(a.points, fine, s.unit)
+        lo_b, shape_b = bounds(b.points, fine, s.unit)
         self.ra = Raster(a, lo_a, shape_a, fine, 0.5 * s.sigma_m, s.free_penalty, bins=2 * ORIENTATIONS)
         self.rb = Raster(b, lo_b, shape_b, fine, 0.5 * s.sigma_m, s.free_penalty, bins=2 * ORIENTATIONS)
         self.pa, self.bins_a = cell_centres(self.ra)
@@ -239,7 +254,11 @@ def refine(score: FineScore, pose: np.ndarray, s: GroupFitSettings) -> tuple[np.
     return pose, best
 
 
-def refine_icp(a: Cloud, b: Cloud, pose: np.ndarray, *, iterations: int = 30, radius_m: float = 0.3,
+REFINE_RADIUS_M = 0.3
+"""The point-to-line polish pairs a wall point with walls of the other group this close."""
+
+
+def refine_icp(a: Cloud, b: Cloud, pose: np.ndarray, *, iterations: int = 30, radius_m: float = REFINE_RADIUS_M,
                trim_fraction: float = 0.8) -> np.ndarray:
     """``pose`` polished by trimmed point-to-line ICP of B's walls onto A's walls seen from the same side
     (normals within 67.5°), as the correlative matcher polishes its grid estimate."""
@@ -279,12 +298,12 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
     best_coarse, pose = peaks[0]
     fine = FineScore(a, b, s)
     pose, score = refine(fine, pose, s)
-    polished = refine_icp(a, b, pose)
+    polished = refine_icp(a, b, pose, radius_m=REFINE_RADIUS_M * s.unit)
     polished_score = float(fine(polished[None, :])[0])
     if polished_score >= score - POLISH_TOLERANCE:
         pose, score = polished, polished_score
     rival = credible_rival(fine, peaks[1:], pose, best_coarse, s)
-    covariance = score_covariance(fine, pose)
+    covariance = score_covariance(fine, pose, s.unit)
     covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, peaks[0][1])
     return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
                     best_coarse=best_coarse, covariance=covariance)
@@ -342,28 +361,29 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     return ""
 
 
-def score_covariance(score: FineScore, pose: np.ndarray) -> np.ndarray:
+def score_covariance(score: FineScore, pose: np.ndarray, unit: float = 1.0) -> np.ndarray:
     """Covariance of a fit's pose from the curvature of its score (a Laplace approximation): a quadratic
     fitted to ``S`` over ±0.1 m and ±0.5° around ``pose``, read as a log-likelihood at
     ``SCORE_TEMPERATURE`` cells per unit. A direction the score cannot tell apart (along a tunnel seen
     from both ends) gets a wide sigma, up to :data:`MAX_SIGMA` (metres, degrees). The turn is about
-    B's frame origin (``pose[:2]``), as ``pose`` turns B."""
-    d = np.arange(-2, 3) * 0.05
+    B's frame origin (``pose[:2]``), as ``pose`` turns B. Every length (the probes, :data:`MAX_SIGMA`'s
+    metres, :data:`PROFILE_FROM_M`) is taken ``unit`` times as long."""
+    d = np.arange(-2, 3) * 0.05 * unit
     t = np.radians(np.arange(-1, 2) * 0.5)
     dx, dy, dt = (v.ravel() for v in np.meshgrid(d, d, t, indexing="ij"))
     values = score(np.column_stack([pose[0] + dx, pose[1] + dy, pose[2] + dt]), prior=False)
     design = np.column_stack([np.ones_like(dx), dx, dy, dt, dx * dx, dy * dy, dt * dt, dx * dy, dx * dt, dy * dt])
     c = np.linalg.lstsq(design, values, rcond=None)[0]
     hessian = -np.array([[2 * c[4], c[7], c[8]], [c[7], 2 * c[5], c[9]], [c[8], c[9], 2 * c[6]]])
-    scale = np.array([1.0, 1.0, 1.0 / math.radians(1.0)])  # metres and degrees: comparable curvatures
+    scale = np.array([unit, unit, 1.0 / math.radians(1.0)])  # units of length and degrees: comparable curvatures
     scaled = hessian / np.outer(scale, scale)
     vals, vecs = np.linalg.eigh(0.5 * (scaled + scaled.T))
     floor = SCORE_TEMPERATURE / MAX_SIGMA**2
     vals = np.maximum(vals, floor)
     for k in range(3):
         length = float(np.hypot(*vecs[:2, k]))
-        if length > 0.9 and SCORE_TEMPERATURE / vals[k] > PROFILE_FROM_M**2:
-            sigma = profile_sigma(score, pose, vecs[:2, k] / length)
+        if length > 0.9 and SCORE_TEMPERATURE / vals[k] > PROFILE_FROM_M**2:  # both in units of length
+            sigma = profile_sigma(score, pose, vecs[:2, k] / length, unit) / unit
             vals[k] = max(vals[k], SCORE_TEMPERATURE / sigma**2)
     information = (vecs * vals) @ vecs.T * np.outer(scale, scale)
     cov = SCORE_TEMPERATURE * np.linalg.inv(information)
@@ -376,7 +396,7 @@ PROFILE_FROM_M = 0.2
 PROFILE_STEPS_M = (0.2, 0.4, 0.8, 1.6, 3.2)
 
 
-def profile_sigma(score: FineScore, pose: np.ndarray, direction: np.ndarray) -> float:
+def profile_sigma(score: FineScore, pose: np.ndarray, direction: np.ndarray, unit: float = 1.0) -> float:
     """The sigma (m) of a fit along a direction its peak's curvature cannot resolve, from the score's
     profile along it.
 
@@ -384,9 +404,11 @@ def profile_sigma(score: FineScore, pose: np.ndarray, direction: np.ndarray) -> 
     make the score fall farther out. Stepping out both ways by :data:`PROFILE_STEPS_M`, the first step
     ``d`` at which the smaller of the two drops reaches half a unit of log-likelihood gives the sigma of
     a Gaussian falling so (``d * sqrt(T / (2 dS))``), but never less than the flat stretch before it
-    (uniform over ``±d_prev``: ``d_prev / sqrt(3)``); :data:`MAX_SIGMA` when the score never falls.
+    (uniform over ``±d_prev``: ``d_prev / sqrt(3)``); :data:`MAX_SIGMA` when the score never falls. The
+    steps and :data:`MAX_SIGMA` are taken ``unit`` times as long.
     """
-    steps = np.asarray(PROFILE_STEPS_M)
+    steps = np.asarray(PROFILE_STEPS_M) * unit
+    most = MAX_SIGMA * unit
     offsets = np.concatenate([steps, -steps])[:, None] * np.asarray(direction)[None, :]
     probes = np.column_stack([pose[:2] + offsets, np.full(len(offsets), pose[2])])
     values = score(np.vstack([pose[None, :], probes]), prior=False)
@@ -394,9 +416,9 @@ def profile_sigma(score: FineScore, pose: np.ndarray, direction: np.ndarray) -> 
     flat = 0.0
     for d, drop in zip(steps, drops):
         if drop >= 0.5 * SCORE_TEMPERATURE:
-            return min(MAX_SIGMA, max(d * math.sqrt(SCORE_TEMPERATURE / (2.0 * drop)), flat / math.sqrt(3.0)))
+            return min(most, max(d * math.sqrt(SCORE_TEMPERATURE / (2.0 * drop)), flat / math.sqrt(3.0)))
         flat = d
-    return MAX_SIGMA
+    return most
 
 
 OUTLYING_M = 0.25
@@ -434,7 +456,7 @@ def outlying_spread(scores: np.ndarray, offset: np.ndarray, shape_a: tuple[int, 
     k = np.column_stack([np.where(cols < shape_a[1], cols, cols - w), np.where(rows < shape_a[0], rows, rows - h)])
     t = k * s.cell_m + offset - np.asarray(best[:2], dtype=np.float64)
     weight = np.exp((scores[yaw, rows, cols] - top) / SCORE_TEMPERATURE)
-    far = np.hypot(t[:, 0], t[:, 1]) > OUTLYING_M
+    far = np.hypot(t[:, 0], t[:, 1]) > OUTLYING_M * s.unit
     return (weight[far, None, None] * (t[far, :, None] * t[far, None, :])).sum(axis=0) / weight.sum()
 
 

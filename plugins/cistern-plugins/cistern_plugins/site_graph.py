@@ -122,7 +122,7 @@ from typing import ClassVar
 
 import gtsam
 import numpy as np
-from pydantic import Field
+from pydantic import Field, PrivateAttr
 
 from cistern_archive.core.scan import wrap_angle
 from cistern_archive.pipeline.contracts import (GuidedLocalizer, MatchGuess, MatchResult, Poses, StageParams,
@@ -133,6 +133,7 @@ from cistern_plugins.factor_graph import spanning_tree
 from cistern_plugins.group_clouds import normal_moment
 from cistern_plugins.group_fit import GroupFitSettings
 from cistern_plugins.settled_groups import recheck_groups
+from cistern_plugins.sonar_scale import scaled_lengths, site_length_unit
 from cistern_plugins.site_groups import (
     Graph,
     WallCheck,
@@ -185,12 +186,39 @@ class SiteGraphParams(GraphParams):
     group_max_gap: int = Field(1, ge=1, description="a group fit joins only groups with two stations at most "
                                "this many places apart in the survey's order (1: one visited right after the "
                                "other; step 2 of the module docstring)")
+    length_unit: float | None = Field(None, gt=0, description="metres of the site per metre of every length "
+                                      "of this localizer (its *_m parameters but the depth tolerance and the "
+                                      "ties', the wall checks' and the group fits'), written for the calibration "
+                                      "sonar; none: the median over the site's scans of the matchers' length unit "
+                                      "(the largest of 1, the bin over 0.05 m and the farther echoes' range over "
+                                      "10 m); 1: metres as given")
+    _site_unit: float = PrivateAttr(1.0)
+
+    UNSCALED: ClassVar[tuple[str, ...]] = ("level_tolerance_m", "tie_sigma_m")
+    """Lengths that belong to the vehicle, not to the sonar: how far apart the levels lie and how still
+    the vehicle held its place while it descended."""
+
+    @property
+    def site_unit(self) -> float:
+        """The unit these parameters' lengths are scaled to (:meth:`for_site`; 1 before)."""
+        return self._site_unit
+
+    def for_site(self, scans: Sequence[RangeScan]) -> "SiteGraphParams":
+        """These parameters with their lengths scaled to the site of ``scans``: ``length_unit``, or
+        :func:`~cistern_plugins.sonar_scale.site_length_unit` when it is none; themselves at unit 1.
+        Called once per call of the localizer, on the parameters as configured."""
+        unit = self.length_unit if self.length_unit is not None else site_length_unit(scans)
+        if unit == 1.0:
+            return self
+        scaled = scaled_lengths(self, unit).model_copy(update={name: getattr(self, name) for name in self.UNSCALED})
+        scaled._site_unit = unit
+        return scaled  # type: ignore[return-value]
 
     def group_settings(self) -> GroupFitSettings:
-        """The settings of :func:`cistern_plugins.group_fit.fit_groups`."""
+        """The settings of :func:`cistern_plugins.group_fit.fit_groups`, at the site's unit."""
         return GroupFitSettings(min_score=self.group_min_score, ambiguity_ratio=self.group_ambiguity_ratio,
                                 free_penalty=self.group_free_penalty, yaw_window_deg=self.group_yaw_window_deg,
-                                compass_sigma_deg=self.compass_sigma_deg)
+                                compass_sigma_deg=self.compass_sigma_deg).at_unit(self.site_unit)
 
 
 class SiteGraphLocalizer(GuidedLocalizer):
@@ -220,7 +248,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
         within reach of the solution so far (with a guess) and global matches for the scans not yet
         joined to the rest (module docstring, step 1). The scans come in the survey's order
         (:mod:`cistern_archive.pipeline.survey_order`)."""
-        p = SiteGraphParams.of(params)
+        p = SiteGraphParams.of(params).for_site(scans)
         n = len(scans)
         if not matches:
             return self.first_pairs(scans, p)
@@ -265,7 +293,7 @@ class SiteGraphLocalizer(GuidedLocalizer):
                  ties: Sequence[VerticalTie] = ()) -> Poses:
         """Place every scan a consistent chain of matches joins to the reference (module docstring); the
         scans come in the survey's order (:mod:`cistern_archive.pipeline.survey_order`)."""
-        p = SiteGraphParams.of(params)
+        p = SiteGraphParams.of(params).for_site(scans)
         n = len(scans)
         graph = consistent_edges(scans, matches, p, ties)
         main = largest_group(graph)
@@ -383,7 +411,7 @@ def consistent_edges(scans: Sequence[RangeScan], matches: Sequence[MatchResult],
     loops = [s and c for s, c in zip(strong, confident)]
     tiers = (([s and c for s, c in zip(sequence, strong)], False), (loops, True), (sequence, False))
     walls = WallCheck(scans, p)
-    moments = [normal_moment(scan) for scan in scans]
+    moments = [normal_moment(scan, p.site_unit) for scan in scans]
     while True:
         best, tier = None, 0
         for tier, (bridges, loop_closures) in enumerate(tiers):

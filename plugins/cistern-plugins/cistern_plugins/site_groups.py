@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import gtsam
@@ -255,6 +255,13 @@ class JoinPair(NamedTuple):
     rel: gtsam.Pose2
 
 
+def wall_limits(unit: float) -> ConvergenceThresholds:
+    """The fixed verification limits the wall check judges a join by, their lengths (``*_m``) taken
+    ``unit`` times as long (the site's :func:`~cistern_plugins.sonar_scale.site_length_unit`)."""
+    limits = ConvergenceThresholds()
+    return replace(limits, **{f.name: getattr(limits, f.name) * unit for f in fields(limits) if f.name.endswith("_m")})
+
+
 class WallCheck:
     """Whether joining two groups would put the walls one group's sonars saw into the water the other
     group's sonars saw (module docstring, step 2): every pair of scans of the two groups at one depth
@@ -267,7 +274,8 @@ class WallCheck:
     def __init__(self, scans: Sequence[RangeScan], p: SiteGraphParams):
         self.scans, self.p = scans, p
         self.levels = scan_levels(scans, p)
-        self.limits = ConvergenceThresholds()
+        self.limits = wall_limits(p.site_unit)
+        self.corroborated_run_m = CORROBORATED_RUN_M * p.site_unit
         self.models: dict[int, ReferenceModel] = {}
 
     def model(self, k: int) -> ReferenceModel:
@@ -320,11 +328,11 @@ class WallCheck:
         if run > self.limits.max_violation_run_m:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
                     f"({self.label(a)} – {self.label(b)}; at most {self.limits.max_violation_run_m:.2f} m)")
-        corroborated = corroborated_runs(pairs, CORROBORATED_RUN_M, lone_scan(graph, i, j))
+        corroborated = corroborated_runs(pairs, self.corroborated_run_m, lone_scan(graph, i, j))
         if len(corroborated) >= CORROBORATED_PAIRS:
             seen = ", ".join(f"{self.label(a)} – {self.label(b)} {run:.2f} m" for run, a, b in corroborated)
             return (f"joining its groups would lay wall across the water other scans saw, from {len(corroborated)} "
-                    f"pairs of stations apart ({seen}; {CORROBORATED_PAIRS} or more over {CORROBORATED_RUN_M:.2f} m): "
+                    f"pairs of stations apart ({seen}; {CORROBORATED_PAIRS} or more over {self.corroborated_run_m:.2f} m): "
                     "as one chamber's opening laid onto a look-alike's solid wall")
         both_ways = two_way_share(sharing) if len(sharing) >= TWO_WAY_PAIRS else 0.0
         if both_ways > TWO_WAY_SHARE:
@@ -420,8 +428,8 @@ def group_fit(scans: Sequence[RangeScan], graph: Graph, a: list[int], b: list[in
     poses_a, poses_b = [pose_array(graph.pose[k]) for k in a], [pose_array(graph.pose[k]) for k in b]
 
     def compute() -> tuple[GroupFit | None, tuple[float, float]]:
-        cloud_a = Cloud([scans[k] for k in a], poses_a)
-        cloud_b = Cloud([scans[k] for k in b], poses_b)
+        cloud_a = Cloud([scans[k] for k in a], poses_a, p.site_unit)
+        cloud_b = Cloud([scans[k] for k in b], poses_b, p.site_unit)
         return fit_groups(cloud_a, cloud_b, p.group_settings()), (wall_spread(cloud_a), wall_spread(cloud_b))
 
     key = (digest, tuple(a), pose_key(poses_a), tuple(b), pose_key(poses_b), p.group_settings())
@@ -553,13 +561,14 @@ whose ends its stations do not hear fits anywhere along itself (the fit's covari
 ``MAX_SIGMA``), and a group placed through it would be placed by that much."""
 
 
-def loose_along(fit: GroupFit) -> str:
+def loose_along(fit: GroupFit, unit: float = 1.0) -> str:
     """Why a passage's fit leaves its place too loose along some direction (looser than
-    :data:`PASSAGE_FIT_SIGMA_M`), or empty."""
+    :data:`PASSAGE_FIT_SIGMA_M` times the site's ``unit``), or empty."""
     sigma = float(np.sqrt(np.linalg.eigvalsh(fit.covariance[:2, :2]).max()))
-    if sigma <= PASSAGE_FIT_SIGMA_M:
+    most = PASSAGE_FIT_SIGMA_M * unit
+    if sigma <= most:
         return ""
-    return f"it fits within ±{sigma:.2f} m along one direction only (σ > {PASSAGE_FIT_SIGMA_M:.2f} m)"
+    return f"it fits within ±{sigma:.2f} m along one direction only (σ > {most:.2f} m)"
 
 
 def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams,
@@ -609,7 +618,7 @@ def passage_edges(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p:
         fit, spreads = group_fit(scans, graph, a, b, p, digest)
         if spreads[1] >= s.min_spread:
             return [], ""
-        why = accept(fit, s, (spreads[0], 1.0)) or loose_along(fit)
+        why = accept(fit, s, (spreads[0], 1.0)) or loose_along(fit, s.unit)
         if why:
             return [], f"fitted as a passage to {walls.label(a[0])}'s group: {why}"
         edges.append(group_edge(graph, a, b, fit))

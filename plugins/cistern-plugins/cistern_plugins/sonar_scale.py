@@ -23,6 +23,7 @@ changes.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Self
 
 import numpy as np
@@ -62,6 +63,16 @@ def length_unit(*scans: RangeScan, bin_m: float = CALIBRATION_BIN_M, range_m: fl
     finite number counts as 1)."""
     ratios = [float(s.bin_size_m) / bin_m for s in scans] + [wall_range_m(s) / range_m for s in scans]
     return max([1.0] + [r for r in ratios if math.isfinite(r)])
+
+
+def site_length_unit(scans: Sequence[RangeScan], bin_m: float = CALIBRATION_BIN_M,
+                     range_m: float = CALIBRATION_RANGE_M) -> float:
+    """Metres of a site per metre of a limit written for the calibration sonar: the median over its scans
+    of each one's :func:`length_unit` (1 without scans). A site's lengths — how far a join may lay wall
+    across water, a group fit's cells — hold for all its scans at once; the median follows the site's
+    usual scan, not the one that looked down the longest gallery."""
+    units = [length_unit(s, bin_m=bin_m, range_m=range_m) for s in scans]
+    return float(np.median(units)) if units else 1.0
 
 
 def scaled_lengths(model: BaseModel, unit: float) -> BaseModel:
