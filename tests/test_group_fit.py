@@ -18,6 +18,7 @@ from cistern_plugins.group_clouds import TRACE_GAP_M, Cloud, facing_normals, wal
 from cistern_plugins.group_fit import (MAX_SIGMA, SCORE_TEMPERATURE, GroupFit, GroupFitSettings, accept, fit_groups,
                                       outlying_spread, profile_sigma, score_covariance)
 from cistern_plugins.site_graph import SiteGraphLocalizer, SiteGraphParams, consistent_edges
+from cistern_plugins.sonar_scale import site_length_unit
 
 # West chamber 5 m x 4 m, a tunnel 1 m wide and 1.5 m long, an east chamber of another shape.
 SITE = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 1.5], [6.5, 1.5], [6.5, -0.5], [9.5, -0.5], [11.0, 1.0],
@@ -112,6 +113,30 @@ def test_site_graph_joins_the_two_chambers_no_match_could_join():
     assert alone.placed.tolist() == [True] * 3 + [False] * 3
     graph = consistent_edges(scans, matches, SiteGraphParams(group_min_score=1e6))
     assert len(set(graph.group)) == 2 and "too little wall" in graph.unjoined[3]
+
+
+def test_a_site_three_times_as_large_is_joined_as_the_one_it_was_drawn_from():
+    """The two chambers above three times as large in every length (walls, stations, range, bins): the
+    site's length unit is 3, the group fit joins them as it joined the smaller site, at three times the
+    offsets, and reports the join's sigma three times as wide; held to the lengths in metres it does not
+    (its 0.1 m cells and σ see the larger walls' echoes as noise)."""
+    def site(scale):
+        rng = np.random.default_rng(9)
+        positions = [tuple(scale * np.asarray(p)) for p in WEST + EAST]
+        scans = [polygon_scan([SITE * scale], p, 0.0, rng=rng, n_beams=400, max_range_m=6.0 * scale,
+                              bin_size_m=0.05 * scale, station=f"s{k + 1}") for k, p in enumerate(positions)]
+        matches = [_match(i, j, positions) for i in range(6) for j in range(6) if i != j and (i < 3) == (j < 3)]
+        return scans, matches
+
+    small, large = site(1.0), site(3.0)
+    assert site_length_unit(small[0]) == 1.0 and site_length_unit(large[0]) == pytest.approx(3.0)
+    a = SiteGraphLocalizer().localize(*small, SiteGraphParams())
+    b = SiteGraphLocalizer().localize(*large, SiteGraphParams())
+    assert a.placed.all() and b.placed.all()
+    np.testing.assert_allclose(b.xy_m - b.xy_m[0], 3 * (a.xy_m - a.xy_m[0]), atol=0.05)
+    assert b.group_link_sigma_m[0] == pytest.approx(3 * a.group_link_sigma_m[0], rel=0.1)
+    in_metres = SiteGraphLocalizer().localize(*large, SiteGraphParams(length_unit=1.0))
+    assert not in_metres.placed.all()
 
 
 def test_a_search_peak_the_refinement_does_not_confirm_is_refused():
