@@ -111,6 +111,15 @@ builds a graph over the whole site instead, in three steps.
    two scans' relative position (``Poses.group_link_sigma_m``): how well the join places the two groups
    against each other.
 
+Every length of these steps — the guided window, the cycle tolerance, the graph's default σ, the wall
+check's limits, the group fits' cells, σ, separation and probes, the clouds' margins and traces — is
+written for the calibration sonar (bins of 0.04–0.05 m, walls within 10 m) and taken ``length_unit``
+times as long: by default the median over the site's scans of the matchers' length unit
+(:func:`~cistern_plugins.sonar_scale.site_length_unit`): random cisterns drawn three times as large
+place 162 of their 170 scans, against 78 with these lengths in metres and 166 at their own size
+(``benchmarks/RESULTS.md``, "2026-12-07 (session 24)"). The depth levels' tolerance and the ties' σ
+belong to the vehicle and stay in metres.
+
 Reasons name stations by their labels: an unplaced scan says which of its matches were rejected and why.
 """
 
