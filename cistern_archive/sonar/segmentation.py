@@ -103,16 +103,16 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
 
     Windows are written in metres for the tuning bins (``TUNED_BIN_M``, 0.04 m): finer bins keep them in
     metres (at least one bin), so heads with 2 mm bins see the same physical extents; coarser bins keep
-    their bin counts (:func:`_bins`), as a longer range setting lengthens the bins and the pulse with
-    them (Ping Viewer sets a Ping360's transmit duration from the range resolution; the simulator's sites
-    drawn larger lengthen the pulse with the bins), so an echo, its smear and the shadow behind it span
-    as many bins as at the tuning bins. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the tuning
-    set and dropped: smoothing across 3 or 5 beams, and keeping only detections that an adjacent beam
-    confirms within 0.08-0.16 m, at every range; both missed more walls (grazing ones, whose range changes
-    fast from beam to beam) than they removed false ones where the noise stays under the threshold (step
-    5 asks for neighbours only where it does not). So was looking for the shadow behind the end of a long
-    (grazing) echo rather than behind its leading edge: it accepted leading edges decimetres before the
-    wall on the beam's axis.
+    their bin counts (:func:`_bins`), as a longer range setting lengthens the bins and the pulse with them
+    (Ping Viewer sets a Ping360's transmit duration from the range resolution; the simulator's sites drawn
+    larger lengthen the pulse with the bins), so an echo, its smear and the shadow behind it span as many
+    bins as at the tuning bins. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the
+    tuning set and dropped: smoothing across 3 or 5 beams, and keeping only detections that an adjacent
+    beam confirms within 0.08-0.16 m, at every range; both missed more walls (grazing ones, whose range
+    changes fast from beam to beam) than they removed false ones where the noise stays under the threshold
+    (step 5 asks for neighbours only where it does not). So was looking for the shadow behind the end of a
+    long (grazing) echo rather than behind its leading edge: it accepted leading edges decimetres before
+    the wall on the beam's axis.
 
 Every method returns a :class:`~cistern_archive.core.scan.RangeScan`. The CFAR and shadow constants below
 were chosen on simulated scans whose seeds are not those of the bundled catalog, and reported on others;
@@ -296,8 +296,8 @@ def _bins(length_m: float, bin_size_m: float) -> int:
 
     Random cisterns drawn three times as large (``benchmarks/sites.py --random 20 --seed 2 --generator
     '{"scale": 3.0}'``: 0.12 m bins, the pulse three times as long) placed 98 of 170 scans with the
-    windows in metres, whose trailing shadow then covered a third of the echo's smear, and 164 with the
-    bin counts (166 at their own size; ``benchmarks/RESULTS.md``)."""
+    windows in metres, whose trailing shadow then covered a third of the echo's smear, and 162 with the
+    bin counts (166 at their own size; ``benchmarks/RESULTS.md``, "2026-12-07 (session 24)")."""
     return max(1, int(round(length_m / min(bin_size_m, TUNED_BIN_M))))
 
 

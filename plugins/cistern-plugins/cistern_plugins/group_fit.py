@@ -375,7 +375,7 @@ def score_covariance(score: FineScore, pose: np.ndarray, unit: float = 1.0) -> n
     design = np.column_stack([np.ones_like(dx), dx, dy, dt, dx * dx, dy * dy, dt * dt, dx * dy, dx * dt, dy * dt])
     c = np.linalg.lstsq(design, values, rcond=None)[0]
     hessian = -np.array([[2 * c[4], c[7], c[8]], [c[7], 2 * c[5], c[9]], [c[8], c[9], 2 * c[6]]])
-    scale = np.array([1.0 / unit, 1.0 / unit, 1.0 / math.radians(1.0)])  # units of length and degrees: comparable curvatures
+    scale = np.array([1.0 / unit, 1.0 / unit, 1.0 / math.radians(1.0)])  # units of length, degrees: comparable
     scaled = hessian / np.outer(scale, scale)
     vals, vecs = np.linalg.eigh(0.5 * (scaled + scaled.T))
     floor = SCORE_TEMPERATURE / MAX_SIGMA**2

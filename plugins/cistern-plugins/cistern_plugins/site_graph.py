@@ -116,7 +116,7 @@ check's limits, the group fits' cells, σ, separation and probes, the clouds' ma
 written for the calibration sonar (bins of 0.04–0.05 m, walls within 10 m) and taken ``length_unit``
 times as long: by default the median over the site's scans of the matchers' length unit
 (:func:`~cistern_plugins.sonar_scale.site_length_unit`): random cisterns drawn three times as large
-place 162 of their 170 scans, against 78 with these lengths in metres and 166 at their own size
+place 162 of their 170 scans, against 155 with these lengths in metres and 166 at their own size
 (``benchmarks/RESULTS.md``, "2026-12-07 (session 24)"). The depth levels' tolerance and the ties' σ
 belong to the vehicle and stay in metres.
 
