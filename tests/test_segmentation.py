@@ -488,16 +488,31 @@ def test_echo_incidence_reads_the_wall_a_beam_meets():
     assert np.isnan(segmentation.echo_incidence(ranges, bearings)[10])
 
 
-def test_a_site_three_times_as_large_is_segmented_at_three_times_the_ranges():
-    """A random cistern drawn three times as large (0.12 m bins, the pulse three times as long, every
-    count drawn as at the original place): the shadow rule keeps its windows' bin counts at bins coarser
-    than it was tuned on, so nearly every beam's echo lies at three times the range (with the windows in
-    metres 83-91 % of the beams did: the trailing window covered a third of the echo's smear)."""
+def _first_scan(**settings):
     from cistern_archive.simulation.chambers import GeneratorSettings, random_cistern
     from cistern_archive.simulation.simulator import simulate_site
 
-    sites = [random_cistern(np.random.default_rng(3), settings=GeneratorSettings(scale=k)) for k in (1.0, 3.0)]
-    small, large = (segment(simulate_site(c.spec).scans[0].scan, Segmentation(min_range_m=0.4)) for c in sites)
+    site = random_cistern(np.random.default_rng(3), settings=GeneratorSettings(**settings))
+    return simulate_site(site.spec).scans[0].scan
+
+
+def test_the_windows_follow_the_echoes_not_the_bins():
+    """At the tuning bins the windows are the metres they were tuned in; coarser bins at the usual pulse
+    lengthen them a little (the bins widen the echo); a site three times as large, its pulse and bins
+    three times as long, three times."""
+    assert segmentation.window_unit(_first_scan(), 0.4) == 1.0
+    assert 1.0 <= segmentation.window_unit(_first_scan(bin_m=0.08), 0.4) < 1.6
+    assert segmentation.window_unit(_first_scan(scale=3.0), 0.4) == pytest.approx(3.0, abs=0.2)
+    assert segmentation.echo_width_m(_first_scan(scale=3.0), 0.4) == pytest.approx(
+        3 * segmentation.echo_width_m(_first_scan(), 0.4), rel=0.1)
+
+
+def test_a_site_three_times_as_large_is_segmented_at_three_times_the_ranges():
+    """A random cistern drawn three times as large (0.12 m bins, the pulse three times as long, every
+    count drawn as at the original place): the shadow rule's windows follow its echoes, three times as
+    long, so nearly every beam's echo lies at three times the range (with the windows in metres 87 % of
+    the beams did: the trailing window covered a third of the echo's smear)."""
+    small, large = (segment(scan, Segmentation(min_range_m=0.4)) for scan in (_first_scan(), _first_scan(scale=3.0)))
     ra, rb = np.asarray(small.ranges_m), np.asarray(large.ranges_m)
     heard = np.isfinite(ra) | np.isfinite(rb)
     same = np.isfinite(ra) & np.isfinite(rb) & (np.abs(rb - 3.0 * ra) <= 2 * large.bin_size_m)

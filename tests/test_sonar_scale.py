@@ -16,6 +16,7 @@ from cistern_plugins.icp import ICPMatcher, ICPParams
 from cistern_plugins.particle_icp import ParticleICPMatcher, ParticleICPParams
 from cistern_plugins.pf_pairwise.params import PFParams
 from cistern_plugins.registration import length_unit
+from cistern_plugins.sonar_scale import site_length_unit
 
 ROOM = [
     np.array([[0, 0], [9.0, 0], [9.0, 3.6], [4.0, 3.6], [4.0, 6.0], [0, 6.0]], float),
@@ -61,6 +62,14 @@ def test_the_length_unit_follows_the_bins_and_the_walls_and_is_never_below_one()
     assert length_unit(ghosts) == pytest.approx(2.0)  # the 90th percentile: walls, not the ghosts beyond
     assert length_unit() == 1.0 and length_unit(_Sonar(0.04)) == 1.0  # no scan, no echo
     assert length_unit(_Sonar(math.nan, 20.0)) == pytest.approx(2.0)  # a bin that is not a number counts 1
+
+
+def test_a_site_unit_follows_the_walls_of_its_usual_scan_not_the_bins():
+    assert site_length_unit([]) == 1.0
+    assert site_length_unit([_Sonar(0.08, 6.0), _Sonar(0.08, 8.0)]) == 1.0  # coarser bins, the usual walls
+    walls = [_Sonar(0.04, 15.0), _Sonar(0.04, 30.0, max_range_m=40.0), _Sonar(0.04, 60.0, max_range_m=80.0)]
+    assert site_length_unit(walls) == pytest.approx(3.0)  # the median, not the farthest gallery
+    assert site_length_unit([_Sonar(0.04, 4.0)] * 2 + walls[2:]) == 1.0
 
 
 def test_every_length_is_scaled_nested_sections_too_and_nothing_else():

@@ -101,18 +101,16 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        the first detection;
     7. the range is sub-bin, as in ``cfar`` (step 6).
 
-    Windows are written in metres for the tuning bins (``TUNED_BIN_M``, 0.04 m): finer bins keep them in
-    metres (at least one bin), so heads with 2 mm bins see the same physical extents; coarser bins keep
-    their bin counts (:func:`_bins`), as a longer range setting lengthens the bins and the pulse with them
-    (Ping Viewer sets a Ping360's transmit duration from the range resolution; the simulator's sites drawn
-    larger lengthen the pulse with the bins), so an echo, its smear and the shadow behind it span as many
-    bins as at the tuning bins. Two uses of the beams' overlap (3° wide at 0.9° steps) were tried on the
-    tuning set and dropped: smoothing across 3 or 5 beams, and keeping only detections that an adjacent
-    beam confirms within 0.08-0.16 m, at every range; both missed more walls (grazing ones, whose range
-    changes fast from beam to beam) than they removed false ones where the noise stays under the threshold
-    (step 5 asks for neighbours only where it does not). So was looking for the shadow behind the end of a
-    long (grazing) echo rather than behind its leading edge: it accepted leading edges decimetres before
-    the wall on the beam's axis.
+    Windows are in metres (at least one bin), so heads with 2 mm bins and heads with 6 cm bins see the
+    same physical extents, as long as their echoes are as long as the tuning sites' (``ECHO_WIDTH_M``);
+    where the echoes are longer and the bins coarser, the windows grow with the echoes up to their bin
+    counts at the tuning bins (:func:`window_unit`). Two uses of the beams' overlap (3° wide at 0.9°
+    steps) were tried on the tuning set and dropped: smoothing across 3 or 5 beams, and keeping only
+    detections that an adjacent beam confirms within 0.08-0.16 m, at every range; both missed more walls
+    (grazing ones, whose range changes fast from beam to beam) than they removed false ones where the
+    noise stays under the threshold (step 5 asks for neighbours only where it does not). So was looking
+    for the shadow behind the end of a long (grazing) echo rather than behind its leading edge: it
+    accepted leading edges decimetres before the wall on the beam's axis.
 
 Every method returns a :class:`~cistern_archive.core.scan.RangeScan`. The CFAR and shadow constants below
 were chosen on simulated scans whose seeds are not those of the bundled catalog, and reported on others;
@@ -121,6 +119,7 @@ were chosen on simulated scans whose seeds are not those of the bundled catalog,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -153,6 +152,14 @@ SHADOW_LEAD_MARGIN = 20.0
 SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
 SHADOW_SMOOTH_M = 3 * TUNED_BIN_M
+ECHO_WIDTH_M = 0.25
+"""The tuning sites' echo length (:func:`echo_width_m`): 0.16-0.24 m, median 0.20, over two scans of each
+of random cisterns 3-6 at 0.04 m bins; the same sites give 0.20 at 0.05 m bins, 0.24 at 0.08 m, 0.40 and
+0.60 drawn two and three times as large (``window_unit``)."""
+ECHO_STAND = 0.15
+"""A beam's strongest bin is an echo to measure when it stands this share of full scale above the beam's
+median (40 of 255 counts)."""
+ECHO_MIN_BEAMS = 10
 COMMON_MARGIN = 60.0
 COMMON_DECAY = 10.0
 FULL_TURN_GAPS = 10
@@ -291,14 +298,61 @@ def _first_strong_peaks(detections: np.ndarray, smooth: np.ndarray) -> np.ndarra
 
 
 def _bins(length_m: float, bin_size_m: float) -> int:
-    """A length of the rules, written for bins of ``TUNED_BIN_M``, as a whole number of bins, at least one:
-    in metres for bins as fine or finer, as many bins as at ``TUNED_BIN_M`` for coarser ones.
+    """A physical length as a whole number of bins, at least one."""
+    return max(1, int(round(length_m / bin_size_m)))
 
-    Random cisterns drawn three times as large (``benchmarks/sites.py --random 20 --seed 2 --generator
-    '{"scale": 3.0}'``: 0.12 m bins, the pulse three times as long) placed 98 of 170 scans with the
-    windows in metres, whose trailing shadow then covered a third of the echo's smear, and 162 with the
-    bin counts (166 at their own size; ``benchmarks/RESULTS.md``, "2026-12-07 (session 24)")."""
-    return max(1, int(round(length_m / min(bin_size_m, TUNED_BIN_M))))
+
+def echo_width_m(scan: Scan, min_range_m: float) -> float:
+    """How long a wall's echo is along the beam: the median over the beams of the width at half height
+    (above the beam's median) of each beam's strongest bin beyond ``min_range_m``, over the beams where it
+    stands ``ECHO_STAND`` of full scale above that median; ``nan`` with fewer than ``ECHO_MIN_BEAMS``."""
+    values = np.asarray(scan.intensities, dtype=np.float64)
+    far = scan.bin_centres_m >= min_range_m
+    if values.size == 0 or not far.any():
+        return float("nan")
+    values = np.where(far[None, :], values, -np.inf)
+    floor = np.median(values[:, far], axis=1)
+    peak = np.argmax(values, axis=1)
+    top = values[np.arange(len(values)), peak]
+    strong = top - floor >= ECHO_STAND * scan.full_scale
+    if strong.sum() < ECHO_MIN_BEAMS:
+        return float("nan")
+    rows, half = values[strong], (0.5 * (floor + top))[strong]
+    below = rows < half[:, None]
+    index = np.arange(values.shape[1])[None, :]
+    first = peak[strong, None]
+    before = np.where(below & (index < first), index, -1).max(axis=1)
+    after = np.where(below & (index > first), index, values.shape[1]).min(axis=1)
+    width = (after - before - 1).astype(np.float64)
+    lit = np.arange(len(rows))
+    inside = before >= 0  # the half-height crossings, between the last bin below and the first above
+    fall = rows[lit[inside], before[inside] + 1] - rows[lit[inside], before[inside]]
+    width[inside] += (rows[lit[inside], before[inside] + 1] - half[inside]) / fall
+    inside = after < values.shape[1]
+    fall = rows[lit[inside], after[inside] - 1] - rows[lit[inside], after[inside]]
+    width[inside] += (rows[lit[inside], after[inside] - 1] - half[inside]) / fall
+    return float(np.median(width) * scan.bin_size_m)
+
+
+def window_unit(scan: Scan, min_range_m: float) -> float:
+    """Metres of this scan per metre of the shadow rule's windows: its echoes' length
+    (:func:`echo_width_m`) over ``ECHO_WIDTH_M``, at least 1 and at most the bins' ratio
+    ``bin_size_m / TUNED_BIN_M`` (1 when the echoes cannot be measured).
+
+    The windows were tuned on echoes ``ECHO_WIDTH_M`` long: a pulse of one 0.04 m bin smeared by the
+    beam's footprint on walls a few metres off. Where the echoes are longer — a longer pulse with the
+    coarser bins of a longer range setting (Ping Viewer sets a Ping360's transmit duration from the range
+    resolution), walls farther off — a window in metres covers less of the echo and of the shadow behind
+    it; bins coarser than the echo only quantise it. Random cisterns drawn three times as large
+    (``benchmarks/sites.py --random 20 --seed 2 --generator '{"scale": 3.0}'``: echoes 0.60 m long at
+    0.12 m bins) placed 98 of 170 scans with the windows in metres, and ``bin_m`` 0.08 at the usual pulse
+    (echoes 0.24 m) placed worse with the windows' bin counts kept (``benchmarks/RESULTS.md``,
+    "2026-12-07 (session 24)")."""
+    ceiling = max(1.0, scan.bin_size_m / TUNED_BIN_M)
+    width = echo_width_m(scan, min_range_m)
+    if ceiling == 1.0 or not math.isfinite(width):
+        return 1.0
+    return float(min(ceiling, max(1.0, width / ECHO_WIDTH_M)))
 
 
 def _moving_average(values: np.ndarray, width: int, axis: int) -> np.ndarray:
@@ -335,8 +389,8 @@ def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, gu
     return out
 
 
-def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False
-                      ) -> tuple[np.ndarray, np.ndarray, float]:
+def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False,
+                      unit: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
     """Detection mask, normalised smoothed image and detection range of the ``shadow`` method (steps 1-5).
 
     Returns
@@ -354,8 +408,10 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_wa
     detection_range_m : float
         Where the receiver noise begins to pass ``threshold`` by itself (:func:`noise_limited`; ``inf``
         when it never does or the scan is no full turn).
+
+    Every window is taken ``unit`` times as long (:func:`window_unit`).
     """
-    bin_m = scan.bin_size_m
+    bin_m = scan.bin_size_m / unit  # each window's length over this is its number of bins
     values = _blank_near(scan, 0.0)
     width = 2 * (_bins(SHADOW_SMOOTH_M, bin_m) // 2) + 1
     smooth = _moving_average(values, width, axis=1)
@@ -533,9 +589,10 @@ def _peaks_and_reach(scan: Scan, settings: SegmentationSettings) -> tuple[np.nda
 def shadow_peaks(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False
                  ) -> tuple[np.ndarray, np.ndarray, float]:
     """The ``shadow`` method's echo peak bin per beam (-1 for none), with its smoothed image and detection
-    range (:func:`shadow_detections`)."""
-    detections, smooth, reach = shadow_detections(scan, threshold, min_range_m, faint_walls)
-    return _echo_peaks(detections, smooth, threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m)), smooth, reach
+    range (:func:`shadow_detections`, its windows scaled to the scan's echoes by :func:`window_unit`)."""
+    unit = window_unit(scan, min_range_m)
+    detections, smooth, reach = shadow_detections(scan, threshold, min_range_m, faint_walls, unit)
+    return _echo_peaks(detections, smooth, threshold, _bins(SHADOW_ECHO_M, scan.bin_size_m / unit)), smooth, reach
 
 
 def segment(scan: Scan, settings: SegmentationSettings) -> RangeScan:
