@@ -153,9 +153,10 @@ SHADOW_ECHO_M = 0.3
 TUNED_BIN_M = 0.04
 SHADOW_SMOOTH_M = 3 * TUNED_BIN_M
 ECHO_WIDTH_M = 0.25
-"""The tuning sites' echo length (:func:`echo_width_m`): 0.16-0.24 m, median 0.20, over two scans of each
-of random cisterns 3-6 at 0.04 m bins; the same sites give 0.20 at 0.05 m bins, 0.24 at 0.08 m, 0.40 and
-0.60 drawn two and three times as large (``window_unit``)."""
+"""The tuning sites' echo length (:func:`echo_width_m`): 0.21-0.28 m, median 0.25, over two scans of each
+of random cisterns 3-8 at 0.04 m bins; the same sites give 0.24-0.31 m at 0.05 m bins, 0.30-0.39 at
+0.08 m (the bins widen the echo), 0.41-0.57 and 0.61-0.85 drawn two and three times as large
+(:func:`window_unit`)."""
 ECHO_STAND = 0.15
 """A beam's strongest bin is an echo to measure when it stands this share of full scale above the beam's
 median (40 of 255 counts)."""
@@ -344,10 +345,11 @@ def window_unit(scan: Scan, min_range_m: float) -> float:
     coarser bins of a longer range setting (Ping Viewer sets a Ping360's transmit duration from the range
     resolution), walls farther off — a window in metres covers less of the echo and of the shadow behind
     it; bins coarser than the echo only quantise it. Random cisterns drawn three times as large
-    (``benchmarks/sites.py --random 20 --seed 2 --generator '{"scale": 3.0}'``: echoes 0.60 m long at
-    0.12 m bins) placed 98 of 170 scans with the windows in metres, and ``bin_m`` 0.08 at the usual pulse
-    (echoes 0.24 m) placed worse with the windows' bin counts kept (``benchmarks/RESULTS.md``,
-    "2026-12-07 (session 24)")."""
+    (``benchmarks/sites.py --random 20 --seed 2 --generator '{"scale": 3.0}'``: echoes 0.61-0.85 m long
+    at 0.12 m bins) placed 98 of 170 scans with the windows in metres and 163 with this unit; at 0.08 m
+    bins and the usual pulse (echoes 0.30-0.39 m) the windows' bin counts matched fewer pairs than metres
+    and put a scan 0.89 m off, this unit as many as metres (``benchmarks/RESULTS.md``, "2026-12-07
+    (session 24)")."""
     ceiling = max(1.0, scan.bin_size_m / TUNED_BIN_M)
     width = echo_width_m(scan, min_range_m)
     if ceiling == 1.0 or not math.isfinite(width):

@@ -113,10 +113,10 @@ builds a graph over the whole site instead, in three steps.
 
 Every length of these steps — the guided window, the cycle tolerance, the graph's default σ, the wall
 check's limits, the group fits' cells, σ, separation and probes, the clouds' margins and traces — is
-written for the calibration sonar (bins of 0.04–0.05 m, walls within 10 m) and taken ``length_unit``
-times as long: by default the median over the site's scans of the matchers' length unit
+written for the calibration sites (walls within 10 m) and taken ``length_unit`` times as long: by
+default the median over the site's scans of their farther echoes' range over 10 m
 (:func:`~cistern_plugins.sonar_scale.site_length_unit`): random cisterns drawn three times as large
-place 162 of their 170 scans, against 155 with these lengths in metres and 166 at their own size
+place 163 of their 170 scans, against 157 with these lengths in metres and 166 at their own size
 (``benchmarks/RESULTS.md``, "2026-12-07 (session 24)"). The depth levels' tolerance and the ties' σ
 belong to the vehicle and stay in metres.
 
@@ -197,10 +197,10 @@ class SiteGraphParams(GraphParams):
                                "other; step 2 of the module docstring)")
     length_unit: float | None = Field(None, gt=0, description="metres of the site per metre of every length "
                                       "of this localizer (its *_m parameters but the depth tolerance and the "
-                                      "ties', the wall checks' and the group fits'), written for the calibration "
-                                      "sonar; none: the median over the site's scans of the matchers' length unit "
-                                      "(the largest of 1, the bin over 0.05 m and the farther echoes' range over "
-                                      "10 m); 1: metres as given")
+                                      "ties', the wall checks' and the group fits'), written for sites whose walls "
+                                      "lie within 10 m; none: the median over the site's scans of their farther "
+                                      "echoes' range (90th percentile) over 10 m, each at least 1; 1: metres as "
+                                      "given")
     _site_unit: float = PrivateAttr(1.0)
 
     UNSCALED: ClassVar[tuple[str, ...]] = ("level_tolerance_m", "tie_sigma_m")
