@@ -204,8 +204,8 @@ class SiteGraphParams(GraphParams):
     _site_unit: float = PrivateAttr(1.0)
 
     UNSCALED: ClassVar[tuple[str, ...]] = ("level_tolerance_m", "tie_sigma_m")
-    """Lengths that belong to the vehicle, not to the sonar: how far apart the levels lie and how still
-    the vehicle held its place while it descended."""
+    """Lengths that belong to the vehicle, not to the site's size: how far apart the levels lie and how
+    still the vehicle held its place while it descended."""
 
     @property
     def site_unit(self) -> float:

@@ -268,8 +268,9 @@ class WallCheck:
     level and within sonar range, placed as the merge would place them, is assessed both ways
     (:meth:`~cistern_plugins.alignment.ReferenceModel.assess_pair`); among the pairs that would share
     walls (``min_inliers`` inliers or more), the median free-space violation share must not exceed
-    ``max_violation_ratio`` (the fixed verification limits). A look-alike chamber fits the scans it was
-    matched with, not the others that see it from elsewhere."""
+    ``max_violation_ratio`` (the fixed verification limits, their lengths at the site's unit:
+    :func:`wall_limits`). A look-alike chamber fits the scans it was matched with, not the others that see
+    it from elsewhere."""
 
     def __init__(self, scans: Sequence[RangeScan], p: SiteGraphParams):
         self.scans, self.p = scans, p
@@ -328,11 +329,12 @@ class WallCheck:
         if run > self.limits.max_violation_run_m:
             return (f"joining its groups would lay {run:.2f} m of wall in a row across the water other scans saw "
                     f"({self.label(a)} – {self.label(b)}; at most {self.limits.max_violation_run_m:.2f} m)")
-        corroborated = corroborated_runs(pairs, self.corroborated_run_m, lone_scan(graph, i, j))
+        least = self.corroborated_run_m
+        corroborated = corroborated_runs(pairs, least, lone_scan(graph, i, j))
         if len(corroborated) >= CORROBORATED_PAIRS:
             seen = ", ".join(f"{self.label(a)} – {self.label(b)} {run:.2f} m" for run, a, b in corroborated)
             return (f"joining its groups would lay wall across the water other scans saw, from {len(corroborated)} "
-                    f"pairs of stations apart ({seen}; {CORROBORATED_PAIRS} or more over {self.corroborated_run_m:.2f} m): "
+                    f"pairs of stations apart ({seen}; {CORROBORATED_PAIRS} or more over {least:.2f} m): "
                     "as one chamber's opening laid onto a look-alike's solid wall")
         both_ways = two_way_share(sharing) if len(sharing) >= TWO_WAY_PAIRS else 0.0
         if both_ways > TWO_WAY_SHARE:
