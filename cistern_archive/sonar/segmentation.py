@@ -325,14 +325,18 @@ def echo_width_m(scan: Scan, min_range_m: float) -> float:
     before = np.where(below & (index < first), index, -1).max(axis=1)
     after = np.where(below & (index > first), index, values.shape[1]).min(axis=1)
     width = (after - before - 1).astype(np.float64)
-    lit = np.arange(len(rows))
-    inside = before >= 0  # the half-height crossings, between the last bin below and the first above
-    fall = rows[lit[inside], before[inside] + 1] - rows[lit[inside], before[inside]]
-    width[inside] += (rows[lit[inside], before[inside] + 1] - half[inside]) / fall
-    inside = after < values.shape[1]
-    fall = rows[lit[inside], after[inside] - 1] - rows[lit[inside], after[inside]]
-    width[inside] += (rows[lit[inside], after[inside] - 1] - half[inside]) / fall
+    for inside, outer, inner in ((before >= 0, before, before + 1), (after < values.shape[1], after, after - 1)):
+        width[inside] += _share_above(rows[inside], inner[inside], outer[inside], half[inside])
     return float(np.median(width) * scan.bin_size_m)
+
+
+def _share_above(rows: np.ndarray, inner: np.ndarray, outer: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Per row, how much of the step from bin ``outer`` (below ``half``) to its neighbour ``inner`` (at or
+    above it) lies above ``half``, the intensity taken as linear between them: the part of a bin beyond
+    the half-height crossing."""
+    at = np.arange(len(rows))
+    high, low = rows[at, inner], rows[at, outer]
+    return (high - half) / (high - low)
 
 
 def window_unit(scan: Scan, min_range_m: float) -> float:

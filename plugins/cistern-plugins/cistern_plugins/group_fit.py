@@ -59,6 +59,7 @@ from scipy.spatial import cKDTree
 from cistern_archive.core.scan import RangeScan
 from cistern_plugins.alignment import compose, point_to_line_step, rotate, transform
 from cistern_plugins.group_clouds import BORDER_M, ORIENTATIONS, Cloud, Raster, bounds, cell_centres
+from cistern_plugins.sonar_scale import scaled_lengths
 
 SCORE_TEMPERATURE = 4.0
 """Cells of score per unit of log-likelihood when the score's curvature becomes a covariance."""
@@ -100,8 +101,7 @@ class GroupFitSettings:
         """These settings with their lengths ``unit`` times as long (itself when ``unit`` is 1)."""
         if unit == 1.0:
             return self
-        return replace(self, cell_m=self.cell_m * unit, sigma_m=self.sigma_m * unit,
-                       separation_m=self.separation_m * unit, unit=self.unit * unit)
+        return replace(scaled_lengths(self, unit), unit=self.unit * unit)
 
 
 @dataclass(frozen=True)

@@ -221,7 +221,7 @@ class SiteGraphParams(GraphParams):
             return self
         scaled = scaled_lengths(self, unit).model_copy(update={name: getattr(self, name) for name in self.UNSCALED})
         scaled._site_unit = unit
-        return scaled  # type: ignore[return-value]
+        return scaled
 
     def group_settings(self) -> GroupFitSettings:
         """The settings of :func:`cistern_plugins.group_fit.fit_groups`, at the site's unit."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, NamedTuple
 
 import gtsam
@@ -20,6 +20,7 @@ from cistern_plugins.factor_graph import Edge
 from cistern_plugins.group_clouds import Cloud, placed_spread, wall_spread
 from cistern_plugins.content_cache import ContentCache, scans_digest
 from cistern_plugins.group_fit import GroupFit, about, accept, fit_groups, pose_key
+from cistern_plugins.sonar_scale import scaled_lengths
 
 if TYPE_CHECKING:  # pragma: no cover
     from cistern_plugins.site_graph import SiteGraphParams
@@ -258,8 +259,7 @@ class JoinPair(NamedTuple):
 def wall_limits(unit: float) -> ConvergenceThresholds:
     """The fixed verification limits the wall check judges a join by, their lengths (``*_m``) taken
     ``unit`` times as long (the site's :func:`~cistern_plugins.sonar_scale.site_length_unit`)."""
-    limits = ConvergenceThresholds()
-    return replace(limits, **{f.name: getattr(limits, f.name) * unit for f in fields(limits) if f.name.endswith("_m")})
+    return scaled_lengths(ConvergenceThresholds(), unit)
 
 
 class WallCheck:

@@ -22,15 +22,18 @@ changes.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Self
+from typing import Self, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, Field
 
 from cistern_archive.core.scan import RangeScan
 from cistern_archive.pipeline.contracts import StageParams
+
+T = TypeVar("T")
 
 CALIBRATION_BIN_M = 0.05
 """Coarsest range bin the built-in matchers' lengths were set on: 0.04 m (the physical simulator's 10 m
@@ -81,12 +84,15 @@ def site_length_unit(scans: Sequence[RangeScan], range_m: float = CALIBRATION_RA
     return float(np.median(units)) if units else 1.0
 
 
-def scaled_lengths(model: BaseModel, unit: float) -> BaseModel:
-    """A copy of ``model`` with every float field named ``*_m`` multiplied by ``unit``, in nested models
-    too (but not in a nested :class:`SonarScaled` section whose ``scale_to_sonar`` is off); ``model``
-    itself when ``unit`` is 1."""
+def scaled_lengths(model: T, unit: float) -> T:
+    """A copy of ``model`` (a pydantic model or a dataclass) with every float field named ``*_m``
+    multiplied by ``unit``, in nested models too (but not in a nested :class:`SonarScaled` section whose
+    ``scale_to_sonar`` is off); ``model`` itself when ``unit`` is 1."""
     if unit == 1.0:
         return model
+    if dataclasses.is_dataclass(model):
+        return dataclasses.replace(model, **{f.name: getattr(model, f.name) * unit for f in dataclasses.fields(model)
+                                             if f.name.endswith("_m") and isinstance(getattr(model, f.name), float)})
     update: dict[str, object] = {}
     for name, value in model:
         if isinstance(value, SonarScaled) and not value.scale_to_sonar:
@@ -112,4 +118,4 @@ class SonarScaled(StageParams):
         ``scale_to_sonar`` is off or the unit is 1."""
         if not self.scale_to_sonar:
             return self
-        return scaled_lengths(self, length_unit(*scans))  # type: ignore[return-value]
+        return scaled_lengths(self, length_unit(*scans))
