@@ -201,6 +201,25 @@ def test_errors_start_aligned_and_rigid():
     assert result["start_aligned"].fixes == 4 and result["start_aligned"].max_m == pytest.approx(0.0, abs=1e-12)
 
 
+
+def test_fixes_of_the_calibration_window_are_drawn_but_not_counted():
+    """The window's fixes are not independent of a calibrated estimate: the summaries and the rigid fit
+    count the fixes after it only, still aligned on the fix where the track starts."""
+    times = np.arange(10.0)
+    truth = np.column_stack([times, np.zeros(10)])
+    drifting = np.column_stack([times, 0.1 * times])  # 0.1 m off per second, none at the start
+    result = evaluate_track(lambda t: np.column_stack([t, 0.1 * t]), times, truth, start=0.0, end=9.0,
+                            evaluated_from=3.0)
+    np.testing.assert_array_equal(result["evaluated"], times > 3.0)
+    np.testing.assert_allclose(result["start_aligned_errors"], 0.1 * times)
+    assert result["start_aligned"].fixes == 6
+    assert result["start_aligned"].mean_m == pytest.approx(0.1 * times[4:].mean())
+    fitted_after = rigid_errors(drifting[4:], truth[4:])
+    np.testing.assert_allclose(result["rigid_errors"][4:], fitted_after, atol=1e-9)
+    assert result["rigid"].max_m == pytest.approx(fitted_after.max(), abs=1e-9)
+    with pytest.raises(ValueError, match="after the calibration window"):
+        evaluate_track(lambda t: np.column_stack([t, 0.1 * t]), times, truth, start=0.0, end=9.0, evaluated_from=9.0)
+
 def test_corrected_track_follows_the_solved_poses():
     track = _straight()  # north, 1 m/s
     node_times = np.array([2.0, 8.0])

@@ -575,6 +575,24 @@ def test_index_shows_a_surveys_track_errors_beside_the_published_rows(tmp_path):
     assert 'id="track-table"' not in render_index([IndexEntry.from_result(cistern)], cisterns_only).read_text()
 
 
+def test_a_tracks_table_counts_only_the_fixes_after_the_calibration_window():
+    """The figure draws every fix of the span; the table's errors leave out those the dead reckoning was
+    calibrated on, and its caption says how many it counts."""
+    from cistern_archive.core.tracks import EstimatedTrack, TrackComparison
+    from cistern_archive.report.track import track_context
+
+    times = np.arange(10.0)
+    errors = times / 10.0
+    estimate = EstimatedTrack("pipeline", np.column_stack([times, times]), errors, errors, evaluated=times > 3.0)
+    track = TrackComparison(time_s=times, fixes_xy_m=np.column_stack([times, times]), tracks=(estimate,),
+                            calibration_end_s=3.0, revolutions=5, revolutions_available=5)
+    context = track_context(track)
+    assert context["rows"][0]["fixes"] == "6"
+    assert context["rows"][0]["start"][0] == f"{errors[4:].mean():.2f}" and context["rows"][0]["start"][2] == "0.90"
+    assert "first 4 fixes of the span lie in the DGPS window" in context["calibration"]
+    assert "the 6 fixes after it" in context["calibration"]
+
+
 def test_map_marks_the_joins_of_groups_fitted_as_wholes(tmp_path):
     """A join that no match made (``Poses.group_links``) is drawn and explained, so the map does not
     suggest the scans were placed by the failed matches drawn between them."""

@@ -1,9 +1,10 @@
 """A moving survey's tracks against ground truth: what the report draws and ``result.json`` summarises.
 
 The errors are the horizontal distances between an estimated track and each DGPS fix, as in Mallios
-et al., Autonomous Robots 36 (2014), Table 2: *start-aligned* (the estimate translated onto the first
-evaluated fix) and *rigid* (after the best 2-D rotation and translation of the whole estimate). The
-navigation layer computes them (:mod:`cistern_archive.navigation.accuracy`); this module only holds them.
+et al., Autonomous Robots 36 (2014), Table 2: *start-aligned* (the estimate translated onto the fix
+where it starts) and *rigid* (after the best 2-D rotation and translation onto the evaluated fixes),
+summarised over the fixes after the calibration window. The navigation layer computes them
+(:mod:`cistern_archive.navigation.accuracy`); this module only holds them.
 """
 
 from __future__ import annotations
@@ -56,20 +57,26 @@ class EstimatedTrack:
         East/north positions at the fix times, in the estimate's own frame (not aligned).
     start_aligned_errors_m, rigid_errors_m : ndarray, shape (N,)
         Distance to each fix after the start alignment and after the rigid alignment.
+    evaluated : ndarray of bool, shape (N,), or None
+        The fixes the summaries count (those after the calibration window); ``None``: all of them.
     """
 
     name: str
     xy_m: np.ndarray
     start_aligned_errors_m: np.ndarray
     rigid_errors_m: np.ndarray
+    evaluated: np.ndarray | None = None
 
     @property
     def start_aligned(self) -> ErrorSummary:
-        return ErrorSummary.of(self.start_aligned_errors_m)
+        return ErrorSummary.of(self._evaluated(self.start_aligned_errors_m))
 
     @property
     def rigid(self) -> ErrorSummary:
-        return ErrorSummary.of(self.rigid_errors_m)
+        return ErrorSummary.of(self._evaluated(self.rigid_errors_m))
+
+    def _evaluated(self, errors: np.ndarray) -> np.ndarray:
+        return errors if self.evaluated is None else errors[self.evaluated]
 
     def start_aligned_xy(self, fixes_xy: np.ndarray) -> np.ndarray:
         """The track translated so that it starts on the first fix (as the start-aligned error sees it)."""
@@ -83,7 +90,7 @@ class TrackComparison:
     Attributes
     ----------
     time_s : ndarray, shape (N,)
-        Times of the evaluated fixes (navigation clock, Unix s).
+        Times of the fixes of the span (navigation clock, Unix s); the tracks keep their errors at each.
     fixes_xy_m : ndarray, shape (N, 2)
         The DGPS fixes (east, north, m).
     tracks : tuple of EstimatedTrack
@@ -111,7 +118,7 @@ class TrackComparison:
 
     @property
     def span_s(self) -> float:
-        """Seconds between the first and the last evaluated fix."""
+        """Seconds between the first and the last fix of the span."""
         return float(self.time_s[-1] - self.time_s[0]) if len(self.time_s) else 0.0
 
     @property

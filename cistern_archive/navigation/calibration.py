@@ -20,13 +20,20 @@ from cistern_archive.navigation.track import Track
 
 @dataclass(frozen=True)
 class Calibration:
-    """Compass offset (added to the map-frame yaw, rad), DVL scale, and the fit's support."""
+    """Compass offset (added to the map-frame yaw, rad), DVL scale, and the fit's support: the window's
+    first time (``start_s``, navigation clock) and length, its fixes and the distance travelled in it."""
 
     yaw_offset_rad: float
     scale: float
     window_s: float
     fixes: int
     distance_m: float
+    start_s: float
+
+    @property
+    def end_s(self) -> float:
+        """The window's last time: every fix after it is independent of the calibration."""
+        return self.start_s + self.window_s
 
     def as_dict(self) -> dict[str, float]:
         return {"compass_offset_deg": round(-math.degrees(self.yaw_offset_rad), 3), "dvl_scale": round(self.scale, 4),
@@ -55,4 +62,4 @@ def fit_start_calibration(track: Track, fix_time: np.ndarray, fixes_xy: np.ndarr
     z = np.sum(np.conj(p) * q) / power
     distance = float(np.interp(start + window_s, track.time, track.distance_m) - np.interp(start, track.time, track.distance_m))
     return Calibration(yaw_offset_rad=float(np.angle(z)), scale=float(np.abs(z)), window_s=window_s,
-                       fixes=int(mask.sum()), distance_m=distance)
+                       fixes=int(mask.sum()), distance_m=distance, start_s=start)

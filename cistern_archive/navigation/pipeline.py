@@ -91,6 +91,12 @@ class SurveyRun:
         return corrected_positions(self.track, node_times, node_poses, times)
 
     @property
+    def calibration_end_s(self) -> float:
+        """End of the DGPS window the dead reckoning was calibrated on (navigation clock): the errors are
+        evaluated at the fixes after it."""
+        return self.calibration.end_s
+
+    @property
     def span_s(self) -> tuple[float, float]:
         """Navigation-clock times of the first and last placed scan."""
         times = [s.time_s for s, ok in zip(self.scans, self.poses.placed) if ok]

@@ -14,7 +14,8 @@ mapper's evidence grid; no reference dimensions) plus a
    of ``timings_s``);
 4. ``map``: the mapper over the placed key frames;
 5. ``track``: dead reckoning as logged, calibrated dead reckoning and the corrected track against the
-   DGPS fixes between the first and the last placed key frame (:func:`evaluate_track`).
+   DGPS fixes between the first and the last placed key frame, summarised over those after the
+   calibration window (:func:`evaluate_track`).
 
 A failure of a step is recorded like a stage failure of a cistern (``result.failure``); it never raises.
 """
@@ -28,7 +29,7 @@ from cistern_archive.catalog.loader import SURVEY_INPUTS, LoadedRecord
 from cistern_archive.catalog.models import SiteRecord, Survey
 from cistern_archive.core.errors import StageError
 from cistern_archive.core.tracks import EstimatedTrack, PublishedRow, TrackComparison
-from cistern_archive.navigation.accuracy import evaluate_track
+from cistern_archive.navigation.accuracy import evaluate_track, independent_after
 from cistern_archive.navigation.pipeline import SurveyConfig, SurveyRun, run_survey, usable_frames
 from cistern_archive.navigation.survey import MarinaSurvey, load_marina_survey
 from cistern_archive.pipeline.assemble import assemble_result
@@ -59,9 +60,11 @@ def survey_config(record: SiteRecord) -> SurveyConfig:
 
 def track_comparison(survey: MarinaSurvey, run: SurveyRun, spec: Survey, config: SurveyConfig) -> TrackComparison:
     """Dead reckoning as logged (the DVL's own compass, no calibration: the published dead-reckoning
-    row's sensors), calibrated dead reckoning and the corrected track at the DGPS fixes of the run's span."""
+    row's sensors), calibrated dead reckoning and the corrected track at the DGPS fixes of the run's span,
+    summarised over the fixes after the calibration window (:func:`evaluate_track`)."""
     fix_time, fixes = survey.dgps_xy()
     start, end = run.span_s
+    after = independent_after(fix_time, start, end, run.calibration_end_s)
     estimates: dict[str, Callable] = {
         "dead reckoning, DVL compass as logged": lambda t, tr=survey.dead_reckoning(heading="dvl"): tr.pose_at(t)[:, :2],
         f"dead reckoning, calibrated on the first {config.calibration_window_s:g} s of DGPS":
@@ -71,17 +74,16 @@ def track_comparison(survey: MarinaSurvey, run: SurveyRun, spec: Survey, config:
     truth = fixes[(fix_time >= start) & (fix_time <= end)]
     tracks, times = [], None
     for name, position_at in estimates.items():
-        row = evaluate_track(position_at, fix_time, fixes, start=start, end=end)
+        row = evaluate_track(position_at, fix_time, fixes, start=start, end=end, evaluated_from=after)
         times = row["time"]
         tracks.append(EstimatedTrack(name=name, xy_m=position_at(times), start_aligned_errors_m=row["start_aligned_errors"],
-                                     rigid_errors_m=row["rigid_errors"]))
+                                     rigid_errors_m=row["rigid_errors"], evaluated=row["evaluated"]))
     published = spec.published
-    calibration_start = max(float(fix_time[0]), float(run.raw_track.time[0]))
     return TrackComparison(
         time_s=times, fixes_xy_m=truth, tracks=tuple(tracks),
         published=tuple(PublishedRow(r.method, r.mean_m, r.sd_m, r.max_m) for r in published.rows) if published else (),
         published_source=published.source if published else "",
-        calibration_end_s=calibration_start + run.calibration.window_s,
+        calibration_end_s=run.calibration_end_s,
         revolutions=len(run.scans), revolutions_available=len(usable_frames(survey, run.track, run.clock_offset_s)),
         clock_offset_s=float(run.clock_offset_s))
 

@@ -3,7 +3,8 @@
 Everything here is drawn from a :class:`~cistern_archive.core.tracks.TrackComparison` the navigation
 layer made; nothing is computed but the start alignment the errors already used. Errors are the
 horizontal distance to each DGPS fix (Mallios et al. 2014, Table 2): *start-aligned* (the estimate
-translated onto the first evaluated fix) and *rigid* (after the best 2-D rotation and translation).
+translated onto the fix where it starts) and *rigid* (after the best 2-D rotation and translation onto
+the fixes after the calibration window, over which the table summarises the errors).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def _style(k: int) -> dict[str, Any]:
 
 
 def span_note(track: TrackComparison) -> str:
-    """What part of the run was evaluated, and why the published rows may not compare."""
+    """What part of the run was drawn, and why the published rows may not compare."""
     text = (f"{len(track.time_s)} DGPS fixes over {track.span_s:.0f} s, between the first and the last placed "
             f"revolution ({track.revolutions} revolutions")
     if track.partial:
@@ -45,14 +46,19 @@ def span_note(track: TrackComparison) -> str:
 
 
 def calibration_note(track: TrackComparison) -> str:
-    """Which fixes the dead reckoning was calibrated on (they are not independent of the estimates)."""
+    """Which fixes the dead reckoning was calibrated on, and that the table's errors leave them out (they
+    are not independent of the estimates)."""
     if track.calibration_end_s is None:
         return ""
     inside = int(np.sum(track.time_s <= track.calibration_end_s))
     if not inside:
-        return "No evaluated fix lies in the calibration window."
-    return (f"The first {inside} evaluated fixes lie in the DGPS window the dead reckoning was calibrated on "
-            "(compass offset and DVL scale); they are not independent of the calibrated tracks.")
+        return "No fix of the span lies in the calibration window."
+    if inside == len(track.time_s):
+        return ("Every fix of the span lies in the DGPS window the dead reckoning was calibrated on (compass offset "
+                "and DVL scale): the errors count them all and are not independent of the calibrated tracks.")
+    return (f"The first {inside} fixes of the span lie in the DGPS window the dead reckoning was calibrated on "
+            "(compass offset and DVL scale); they are not independent of the calibrated tracks, so the errors "
+            f"in the table are those at the {len(track.time_s) - inside} fixes after it.")
 
 
 def tracks_figure(path: Path, track: TrackComparison, *, dpi: int) -> FigureFile:
@@ -86,7 +92,7 @@ def tracks_figure(path: Path, track: TrackComparison, *, dpi: int) -> FigureFile
     save_figure(fig, path, dpi=dpi)
     names = ", ".join(t.name for t in track.tracks)
     caption = ("DGPS fixes (black, good to about 1 m) and each estimated track translated so that it starts on the "
-               "first evaluated fix (green dot); squares mark where each track ends. " + span_note(track))
+               "first fix of the span (green dot); squares mark where each track ends. " + span_note(track))
     return FigureFile("track", path.name, "Tracks over DGPS", f"Map of the DGPS track with the start-aligned "
                       f"estimates: {names}", caption)
 
@@ -112,7 +118,7 @@ def error_figure(path: Path, track: TrackComparison, *, dpi: int) -> FigureFile:
     ax.set_ylim(floor, max(top * 1.5, 1.0))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.set_xlim(0.0, max(float(t[-1]), 1.0))
-    ax.set_xlabel("time since the first evaluated fix (s)")
+    ax.set_xlabel("time since the first fix of the span (s)")
     ax.set_ylabel("start-aligned error (m)")
     ax.grid(True, which="major", color="#dddddd", linewidth=0.6)
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
@@ -137,7 +143,7 @@ def _cells(stats) -> list[str]:
 def track_context(track: TrackComparison) -> dict[str, Any]:
     """The table rows (this build's tracks, then the published ones) and the notes, as strings."""
     rows = [{"name": t.name, "start": _cells(t.start_aligned), "rigid": _cells(t.rigid),
-             "fixes": str(len(t.start_aligned_errors_m)), "published": False} for t in track.tracks]
+             "fixes": str(t.start_aligned.fixes), "published": False} for t in track.tracks]
     rows += [{"name": r.method, "start": [number(r.mean_m, 2), number(r.sd_m, 2), number(r.max_m, 2)],
               "rigid": ["", "", ""], "fixes": "", "published": True} for r in track.published]
     return {"rows": rows, "source": track.published_source, "span": span_note(track),
