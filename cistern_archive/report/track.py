@@ -107,7 +107,7 @@ def error_figure(path: Path, track: TrackComparison, *, dpi: int) -> FigureFile:
     if track.calibration_end_s is not None and track.calibration_end_s > track.time_s[0]:
         end = min(track.calibration_end_s, track.time_s[-1]) - track.time_s[0]
         ax.axvspan(0.0, end, color=CALIBRATION_COLOUR, alpha=0.6, linewidth=0, zorder=0)
-        handles.append(Patch(color=CALIBRATION_COLOUR, alpha=0.6, label="DGPS calibration window"))
+        handles.append(Patch(color=CALIBRATION_COLOUR, alpha=0.6, label="DGPS calibration window (not in the table)"))
     floor = 0.05
     for k, estimate in enumerate(track.tracks):
         errors = np.maximum(estimate.start_aligned_errors_m, floor)
