@@ -203,9 +203,10 @@ TRACK_COLUMNS = (
     TableColumn("mean", "Mean (m)", "mean horizontal distance to the DGPS fixes, the track started on the first fix"),
     TableColumn("sd", "SD (m)", "its standard deviation"),
     TableColumn("max", "Max (m)", "its largest value"),
-    TableColumn("rigid", "Rigid mean (m)", "the mean after the best rigid 2-D alignment of the whole track onto "
-                                           "the fixes (what remains once a start offset and heading are removed)"),
-    TableColumn("fixes", "Fixes", "DGPS fixes the errors are measured at"),
+    TableColumn("rigid", "Rigid mean (m)", "the mean after the best rigid 2-D alignment of the track onto "
+                                           "those fixes (what remains once a start offset and heading are removed)"),
+    TableColumn("fixes", "Fixes", "DGPS fixes the errors are measured at (those after the calibration window, "
+                                          "where the run reaches past it)"),
 )
 
 
