@@ -206,7 +206,7 @@ TRACK_COLUMNS = (
     TableColumn("rigid", "Rigid mean (m)", "the mean after the best rigid 2-D alignment of the track onto "
                                            "those fixes (what remains once a start offset and heading are removed)"),
     TableColumn("fixes", "Fixes", "DGPS fixes the errors are measured at (those after the calibration window, "
-                                          "where the run reaches past it)"),
+                                  "where the run reaches past it)"),
 )
 
 
