@@ -128,7 +128,8 @@ class TrackErrors(Model):
 class TrackSummary(Model):
     """A moving survey's tracks against DGPS (:class:`~cistern_archive.core.tracks.TrackComparison`)."""
 
-    fixes: int
+    fixes: int = Field(description="DGPS fixes of the span drawn; each track's errors count those after "
+                                   "calibration_end_s (their own 'fixes')")
     span_s: float
     revolutions: int
     revolutions_available: int
