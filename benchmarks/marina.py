@@ -55,23 +55,21 @@ from cistern_archive.navigation.records import PUBLISHED_TABLE2 as PUBLISHED  # 
 from cistern_archive.sonar.marina import SONAR_MOUNT_DEG  # noqa: E402
 
 
-def _rows(survey, run, *, whole_span: bool = False) -> dict[str, dict]:
+def _rows(survey, run) -> tuple[dict[str, dict], dict[str, dict]]:
     """Every evaluated track: name → evaluation over the sonar span (:func:`evaluate_track`), at the fixes
-    after the calibration window (at all of them with ``whole_span``, as the published rows were)."""
+    after the calibration window, and the same at all of them (as the published rows were evaluated)."""
     fix_time, fixes = survey.dgps_xy()
     start, end = run.span_s
-    after = None if whole_span else independent_after(fix_time, start, end, run.calibration_end_s)
+    after = independent_after(fix_time, start, end, run.calibration_end_s)
     tracks = {
         "dead reckoning, DVL compass (as logged)": survey.dead_reckoning(heading="dvl"),
         "dead reckoning, MTi compass (as logged)": run.raw_track,
         "dead reckoning, calibrated (first 300 s)": run.track,
     }
-    rows = {name: evaluate_track(lambda t, tr=tr: tr.pose_at(t)[:, :2], fix_time, fixes, start=start, end=end,
-                                 evaluated_from=after)
-            for name, tr in tracks.items()}
-    rows["pipeline (nav-graph)"] = evaluate_track(run.positions_at, fix_time, fixes, start=start, end=end,
-                                                  evaluated_from=after)
-    return rows
+    positions = {name: (lambda t, tr=tr: tr.pose_at(t)[:, :2]) for name, tr in tracks.items()}
+    positions["pipeline (nav-graph)"] = run.positions_at
+    return tuple({name: evaluate_track(at, fix_time, fixes, start=start, end=end, evaluated_from=evaluated_from)
+                  for name, at in positions.items()} for evaluated_from in (after, None))
 
 
 def _halves(row: dict) -> tuple[float, float]:
@@ -173,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     except (CisternError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    rows, whole = _rows(survey, run), _rows(survey, run, whole_span=True)
+    rows, whole = _rows(survey, run)
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     consecutive = [m for m in run.matches if m.j == m.i + 1]
     loops = [m for m in run.matches if m.j != m.i + 1]
