@@ -31,7 +31,10 @@ best by a valley (on the straight path between them the score, maximised over ne
 below ``valley_ratio`` of the best), or a ridge — one elongated peak, as a gallery seen along its axis
 gives, whose position along the ridge is unknown to at least ``ambiguity_distance_m``; and the refined placement passes the shared test
 of :mod:`cistern_plugins.alignment`. The winning pose is refined to sub-cell accuracy by a few
-point-to-line ICP iterations, as Cartographer refines its correlative estimate with a local solver.
+point-to-line ICP iterations, as Cartographer refines its correlative estimate with a local solver; the
+refined pose is kept only where it scores at least what the lattice can cost the optimum (the
+likelihood's fall over half a cell): on pairs that share a few walls the point-to-line fit can slide
+onto another fit, turned by up to 6° and 0.1 m off, which the search's score measures lower.
 The result's ``iterations`` counts the finest-level poses that survived the pruning and ``weight`` is
 the best score.
 
@@ -311,7 +314,8 @@ class CorrelativeMatcher(GuidedMatcher):
         model = ReferenceModel(reference)
         centre = np.zeros(3) if guess is None else np.array([guess.dx_m, guess.dy_m, guess.dyaw_rad])
         half_m = search_half_width(reference, moving, p) if guess is None else guess.radius_m
-        src = transform(thinned(scan_points(moving), 2 * p.resolution_m), centre)
+        thin = thinned(scan_points(moving), 2 * p.resolution_m)
+        src = transform(thin, centre)
         pyr = reference_pyramid(reference, model, p, half_m + 4 * p.sigma_m)
         window = int(math.ceil(half_m / p.resolution_m))
         half_deg = p.search_deg if guess is None else p.guess_search_deg
@@ -342,7 +346,7 @@ class CorrelativeMatcher(GuidedMatcher):
             refined = refine_point_to_line(model, raw, best, iterations=p.refine_iterations,
                                            correspondence_m=p.inlier_distance_m + 2 * p.sigma_m, trim_fraction=0.8,
                                            max_shift_m=4 * p.resolution_m)
-            pose = best if refined is None else refined
+            pose = refined if refined is not None and keeps_score(pyr, thin, best, refined, p) else best
         turned = abs(wrap_angle(pose[2] - centre[2]))
         if not reason and turned > math.radians(half_deg) + yaw_step(angles):
             reason = (f"the refinement turned the heading {math.degrees(turned):.1f}° from the search's centre, "
@@ -371,6 +375,25 @@ def reference_pyramid(reference: RangeScan, model: ReferenceModel, p: Correlativ
            p.free_space_penalty)
     return PYRAMIDS.get(key, lambda: LikelihoodPyramid(model.points, p.resolution_m, p.sigma_m, margin_m, p.levels,
                                                        model.free, p.free_space_margin_m, p.free_space_penalty))
+
+
+def pose_score(pyr: LikelihoodPyramid, points: np.ndarray, pose: np.ndarray) -> float:
+    """The search's score of one pose: the mean likelihood under ``points`` (the moving scan's, in its
+    own frame) placed by ``pose``."""
+    cells = pyr.cells(transform(points, pose))[None]
+    return float(pyr.score(0, cells, np.zeros((1, 2), dtype=np.int64), np.zeros(1, dtype=np.int64))[0])
+
+
+def keeps_score(pyr: LikelihoodPyramid, points: np.ndarray, searched: np.ndarray, refined: np.ndarray,
+                p: CorrelativeParams) -> bool:
+    """Whether the refined pose scores at least what the search's optimum can lose to its lattice: the
+    likelihood's fall over half a cell, ``exp(-(resolution / 2)^2 / (2 sigma^2))`` of the searched
+    pose's score (module docstring). A refinement that loses more has left the search's peak for
+    another fit of the point-to-line objective (a few walls of a partial overlap, matched to the wrong
+    ones within the correspondence distance)."""
+    fall = math.exp(-0.5 * (p.resolution_m / (2 * p.sigma_m)) ** 2)
+    before = pose_score(pyr, points, searched)
+    return pose_score(pyr, points, refined) >= before - (1.0 - fall) * abs(before)
 
 
 def thinned(points: np.ndarray, cell_m: float) -> np.ndarray:
