@@ -215,3 +215,23 @@ def test_a_refinement_that_loses_the_search_score_keeps_the_searched_pose(bundle
     slid = np.array([5.077, -0.829, math.radians(4.9)])  # where the refinement had taken it
     assert pose_score(pyr, points, slid) < 0.8 * pose_score(pyr, points, np.array([res.dx_m, res.dy_m, res.dyaw_rad]))
     assert not keeps_score(pyr, points, np.array([res.dx_m, res.dy_m, res.dyaw_rad]), slid, p)
+
+
+def test_keeps_score_allows_what_the_lattice_can_cost_and_no_more():
+    """A refinement within half a cell of the searched pose is kept (at most the likelihood's fall over half
+    a cell is lost); one a cell off walls on both sides, or turned 3° off walls 3 m away, is not."""
+    from cistern_plugins.correlative import keeps_score, pose_score
+
+    t = np.linspace(0.0, 3.0, 121)
+    walls = np.concatenate([np.column_stack([t, np.zeros_like(t)]), np.column_stack([np.zeros_like(t), t]),
+                            np.column_stack([t, np.full_like(t, 3.0)])])
+    p = CorrelativeParams()
+    pyr = LikelihoodPyramid(walls, p.resolution_m, p.sigma_m, 1.0, 1)
+    at_walls = np.zeros(3)
+    half_cell = np.array([p.resolution_m / 2, p.resolution_m / 2, 0.0])
+    turned = np.array([0.0, 0.0, math.radians(3.0)])
+    assert pose_score(pyr, walls, turned) < 0.9 * pose_score(pyr, walls, at_walls)
+    assert keeps_score(pyr, walls, at_walls, half_cell, p)
+    assert not keeps_score(pyr, walls, at_walls, turned, p)
+    assert not keeps_score(pyr, walls, at_walls, 2 * half_cell, p)  # a cell off both walls: 12 % lower
+    assert keeps_score(pyr, walls, turned, at_walls, p)  # a refinement that gains is always kept
