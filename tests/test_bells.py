@@ -52,11 +52,14 @@ def test_the_lobe_correction_takes_the_bells_dimensions_nearer_the_truth():
 def test_matches_lengthened_by_the_echo_scale_are_nearer_the_truth():
     """On leaning walls every echo falls short and so does every match; lengthened by their scans' echo
     scale (the ``evidence-grid`` mapper's ``lobe_lengthen_matches``) more pairs come within 0.10 m and
-    fewer converge off (three generated bells, seed 12: 37 → 40 of 45 and 8 → 5 when measured)."""
+    fewer converge off (three generated bells, seed 12: 37 → 38 of 45 and 8 → 7 when measured; 37 → 40
+    and 8 → 5 while ``correlative`` kept every refinement: one refinement it now refuses, 0.24 m from the
+    searched pose and 8 % below its score, had been 0.05 m nearer the truth; benchmarks/RESULTS.md
+    "2026-12-07 (session 26)")."""
     off, on = run_bells('{"lobe_lengthen_matches": false}'), run_bells("{}")
     assert on["pairs_ge50"] == off["pairs_ge50"]
-    assert on["pairs_ge50_ok"] >= off["pairs_ge50_ok"] + 2
-    assert on["false_convergences"] <= off["false_convergences"] - 2
+    assert on["pairs_ge50_ok"] >= off["pairs_ge50_ok"] + 1
+    assert on["false_convergences"] <= off["false_convergences"] - 1
     assert on["placed"] == off["placed"] == on["scans"]
 
 
