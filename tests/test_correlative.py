@@ -9,8 +9,9 @@ from cistern_archive.core.scan import RangeScan
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_archive.pipeline.contracts import MatchGuess
 from cistern_archive.testing import simulated_pair
-from cistern_plugins.registration import scan_points
-from cistern_plugins.correlative import CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound
+from cistern_plugins.registration import ReferenceModel, scan_points
+from cistern_plugins.correlative import (CorrelativeMatcher, CorrelativeParams, LikelihoodPyramid, branch_and_bound,
+                                        keeps_score, pose_score, reference_pyramid, thinned)
 
 
 def test_large_offset_without_guess():
@@ -196,8 +197,6 @@ def test_a_refinement_that_loses_the_search_score_keeps_the_searched_pose(bundle
     from cistern_archive.catalog.loader import load_record
     from cistern_archive.evaluation import in_compass_frame
     from cistern_archive.pipeline.runner import range_scans
-    from cistern_plugins.correlative import keeps_score, pose_score, reference_pyramid, thinned
-    from cistern_plugins.registration import ReferenceModel
 
     loaded = load_record(bundled_catalog / "sites" / "three-chambers.yaml", bundled_catalog)
     scans = {scan.station: scan for scan in range_scans(loaded)}
@@ -220,8 +219,6 @@ def test_a_refinement_that_loses_the_search_score_keeps_the_searched_pose(bundle
 def test_keeps_score_allows_what_the_lattice_can_cost_and_no_more():
     """A refinement within half a cell of the searched pose is kept (at most the likelihood's fall over half
     a cell is lost); one a cell off walls on both sides, or turned 3° off walls 3 m away, is not."""
-    from cistern_plugins.correlative import keeps_score, pose_score
-
     t = np.linspace(0.0, 3.0, 121)
     walls = np.concatenate([np.column_stack([t, np.zeros_like(t)]), np.column_stack([np.zeros_like(t), t]),
                             np.column_stack([t, np.full_like(t, 3.0)])])

@@ -201,7 +201,6 @@ def test_errors_start_aligned_and_rigid():
     assert result["start_aligned"].fixes == 4 and result["start_aligned"].max_m == pytest.approx(0.0, abs=1e-12)
 
 
-
 def test_fixes_of_the_calibration_window_are_drawn_but_not_counted():
     """The window's fixes are not independent of a calibrated estimate: the summaries and the rigid fit
     count the fixes after it only, still aligned on the fix where the track starts."""
@@ -219,6 +218,7 @@ def test_fixes_of_the_calibration_window_are_drawn_but_not_counted():
     assert result["rigid"].max_m == pytest.approx(fitted_after.max(), abs=1e-9)
     with pytest.raises(ValueError, match="after the calibration window"):
         evaluate_track(lambda t: np.column_stack([t, 0.1 * t]), times, truth, start=0.0, end=9.0, evaluated_from=9.0)
+
 
 def test_corrected_track_follows_the_solved_poses():
     track = _straight()  # north, 1 m/s
