@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from cistern_archive.core.scan import RangeScan
+from cistern_archive.core.scan import RangeScan, wrap_angle
 from cistern_plugins.alignment import FreeSpace, erosion_reach
 
 
@@ -237,3 +237,43 @@ def test_a_cloud_gathered_along_a_track_shows_no_free_space():
     assert not FreeSpace(cloud).in_free_space(inside, margin_m=0.1)[0]
     assert FreeSpace(cloud).violations(inside, margin_m=0.1) == (0, 0)
     assert not FreeSpace(cloud).visible(point_at(200.0, 5.5), tolerance_m=0.1)[0]
+
+
+def opening_scan() -> RangeScan:
+    """A full turn at 0.9° steps hearing walls 3 m off, but for 15 beams about bearing 0 that heard
+    nothing: an opening the sonar looks through."""
+    bearings = np.radians(np.arange(0.0, 360.0, 0.9))
+    ranges = np.full(len(bearings), 3.0)
+    ranges[np.abs(wrap_angle(bearings)) <= math.radians(6.5)] = np.nan
+    return RangeScan(bearings_rad=bearings, ranges_m=ranges, yaw_rad=0.0, depth_m=1.0, max_range_m=10.0,
+                     bin_size_m=0.04, beam_width_rad=math.radians(3.0))
+
+
+def wall_across(x_m: float, half_m: float = 0.15, n: int = 11) -> tuple[np.ndarray, np.ndarray]:
+    """Points of a wall across bearing 0 at ``x_m``, and their (unsigned) normals."""
+    points = np.column_stack([np.full(n, x_m), np.linspace(-half_m, half_m, n)])
+    return points, np.tile([[1.0, 0.0]], (n, 1))
+
+
+def test_a_wall_facing_the_sonar_where_it_heard_nothing_contradicts_the_pose():
+    """Another sonar heard a wall 2 m off across the opening, from this sonar's side: turned towards this
+    sonar, met head-on and well within its hearing, it would have answered."""
+    free = FreeSpace(opening_scan())
+    points, normals = wall_across(2.0)
+    assert free.unheard_facing(points, normals, seen_from=np.array([1.0, 0.5])).all()
+
+
+def test_silence_says_nothing_of_a_wall_from_behind_obliquely_far_or_on_a_heard_beam():
+    """The back of that wall (the other sonar beyond it, as beside an opening the beam looks through),
+    the same wall turned 60° from the ray, one beyond half the sonar's hearing, and one on beams that
+    heard an echo are no contradiction."""
+    free = FreeSpace(opening_scan())
+    points, normals = wall_across(2.0)
+    assert not free.unheard_facing(points, normals, seen_from=np.array([3.0, 0.0])).any()
+    oblique = np.tile([[math.cos(math.radians(60.0)), math.sin(math.radians(60.0))]], (len(points), 1))
+    assert not free.unheard_facing(points, oblique, seen_from=np.array([0.0, 0.0])).any()
+    far, far_normals = wall_across(4.5)
+    assert not free.unheard_facing(far, far_normals, seen_from=np.array([1.0, 0.0])).any()
+    turned = points @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # the same wall about bearing 90°: heard beams
+    assert not free.unheard_facing(turned, normals @ np.array([[0.0, 1.0], [-1.0, 0.0]]),
+                                   seen_from=np.array([0.0, 1.0])).any()

@@ -353,6 +353,13 @@ OPEN_SECTOR_DEG = 20.0
 walls lie beyond what the sonar hears (a chamber larger than the range), not behind a few faint echoes."""
 
 
+FACE_ON_DEG = 30.0
+"""A wall met within this angle of its normal answers a sonar strongly (:meth:`FreeSpace.unheard_facing`):
+a smooth wall's echo falls by some 15 dB towards grazing incidence, not near its normal."""
+HEARD_SHARE = 0.5
+"""Such a wall is heard surely within this share of :func:`open_water_m` (:meth:`FreeSpace.unheard_facing`)."""
+
+
 def open_water_m(scan: RangeScan) -> float:
     """How far a beam of ``scan`` that heard no wall saw water: ``OPEN_RANGE_SHARE`` of the range, and
     no farther than the scan's ``detection_range_m``, beyond which the receiver's noise hides walls
@@ -410,6 +417,9 @@ class FreeSpace:
         """The same on the bearings of beams that heard an echo, and of a wide run of beams that heard
         none out to :func:`open_water_m`; unknown on the others: how far the sonar saw water
         (:meth:`in_free_space`, :meth:`violation_mask`)."""
+        self.silent = ~np.isfinite(ranges) & scan.rays_from_station
+        """The beams that heard nothing (:meth:`unheard_facing`)."""
+        self.hearing_m = open_water_m(scan)
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -434,6 +444,33 @@ class FreeSpace:
             bad, checked = bad & face_on, checked & face_on
         shadowed = self.shadowed(points)
         return bad & ~shadowed, checked & ~shadowed
+
+    def unheard_facing(self, points: np.ndarray, normals: np.ndarray, seen_from: np.ndarray) -> np.ndarray:
+        """Mask of wall points (relative to this station) that face this sonar, within
+        :func:`open_water_m` of it, on the bearing of a beam that heard nothing.
+
+        ``normals`` are the points' wall normals and ``seen_from`` the station of the sonar that heard
+        them (same frame): the face it heard is the one towards it. A beam that heard nothing says
+        nothing of walls it would meet obliquely, from behind (the rock beside an opening it looks
+        through) or far off (:class:`FreeSpace`); but a wall turned towards it, met within
+        ``FACE_ON_DEG`` of its normal and within ``HEARD_SHARE`` of its hearing, answers. A stretch of such points is a wall
+        laid where this sonar heard none: one chamber's opening set on the solid wall of a look-alike
+        chamber, seen through the opening as silence (:meth:`ReferenceModel.assess_pair`).
+        """
+        if len(self.angles) == 0 or len(points) == 0:
+            return np.zeros(len(points), dtype=bool)
+        a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
+        k = np.searchsorted(self.angles, a) % len(self.angles)
+        km = (k - 1) % len(self.angles)
+        dk, dkm = np.abs(wrap_angle(self.angles[k] - a)), np.abs(wrap_angle(self.angles[km] - a))
+        nearest = np.where(dk <= dkm, k, km)
+        on_silent = self.silent[nearest] & (np.minimum(dk, dkm) <= self.tolerance_rad)
+        r = np.hypot(points[:, 0], points[:, 1])
+        towards_hearer = np.einsum("ij,ij->i", np.asarray(seen_from, dtype=np.float64)[None, :] - points, normals)
+        faces = normals * np.where(towards_hearer < 0, -1.0, 1.0)[:, None]
+        cos_here = np.einsum("ij,ij->i", -points, faces) / np.maximum(r, 1e-9)
+        face_on = cos_here >= math.cos(math.radians(FACE_ON_DEG))
+        return on_silent & face_on & (r <= HEARD_SHARE * self.hearing_m) & ~self.shadowed(points)
 
     def shadowed(self, points: np.ndarray) -> np.ndarray:
         """Mask of points behind a wall (one of ``points`` itself) closer to this sonar than
@@ -624,6 +661,9 @@ class ReferenceModel:
         bad2, seen2 = mov_free.violation_mask(back, limits.free_space_margin_m, back_normals)
         n1, n2 = int(seen1.sum()), int(seen2.sum())
         ratios = (bad1.sum() / n1 if n1 else 0.0, bad2.sum() / n2 if n2 else 0.0)
+        if moved_normals is not None and back_normals is not None:  # walls where the other heard none
+            bad1 = bad1 | self.free.unheard_facing(moved, moved_normals, mov_sonar)
+            bad2 = bad2 | mov_free.unheard_facing(back, back_normals, ref_sonar)
         gap = 2 * limits.inlier_distance_m
         run = max(longest_run_m(src, bad1, gap, viewer=ref_sonar),
                   longest_run_m(self.points, bad2, gap, viewer=mov_sonar))
