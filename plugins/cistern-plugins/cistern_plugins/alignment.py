@@ -13,7 +13,8 @@ smaller eigenvalue of the point-to-line information matrix, per inlier, must rea
 direction must stay below ``max_weak_std_m``), and is the placement physically possible: a wall point of one scan must not lie
 in the free space the other sonar saw in front of its own echo on that bearing (the free-space
 violation ratio, checked both ways, and no stretch of wall longer than ``max_violation_run_m`` in the
-other's water: :func:`longest_run_m`), and a wall is not shared from behind (:func:`seen_from_behind`:
+other's water or turned towards it where it heard nothing: :func:`longest_run_m`,
+:meth:`FreeSpace.unheard_facing`), and a wall is not shared from behind (:func:`seen_from_behind`:
 two look-alike rooms laid back to back). Two scans of different places can share many near points by
 chance; they rarely avoid each other's free space.
 """
@@ -446,26 +447,21 @@ class FreeSpace:
         return bad & ~shadowed, checked & ~shadowed
 
     def unheard_facing(self, points: np.ndarray, normals: np.ndarray, seen_from: np.ndarray) -> np.ndarray:
-        """Mask of wall points (relative to this station) that face this sonar, within
-        :func:`open_water_m` of it, on the bearing of a beam that heard nothing.
+        """Mask of wall points (relative to this station) that face this sonar, within ``HEARD_SHARE``
+        of its hearing (:func:`open_water_m`), on the bearing of a beam that heard nothing.
 
         ``normals`` are the points' wall normals and ``seen_from`` the station of the sonar that heard
         them (same frame): the face it heard is the one towards it. A beam that heard nothing says
         nothing of walls it would meet obliquely, from behind (the rock beside an opening it looks
         through) or far off (:class:`FreeSpace`); but a wall turned towards it, met within
-        ``FACE_ON_DEG`` of its normal and within ``HEARD_SHARE`` of its hearing, answers. A stretch of such points is a wall
-        laid where this sonar heard none: one chamber's opening set on the solid wall of a look-alike
-        chamber, seen through the opening as silence (:meth:`ReferenceModel.assess_pair`).
+        ``FACE_ON_DEG`` of its normal and within that share of its hearing, answers. A stretch of such
+        points is a wall laid where this sonar heard none: one chamber's opening set on the solid wall
+        of a look-alike chamber, seen through the opening as silence (:meth:`ReferenceModel.assess_pair`).
         """
         if len(self.angles) == 0 or len(points) == 0:
             return np.zeros(len(points), dtype=bool)
-        a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
-        k = np.searchsorted(self.angles, a) % len(self.angles)
-        km = (k - 1) % len(self.angles)
-        dk, dkm = np.abs(wrap_angle(self.angles[k] - a)), np.abs(wrap_angle(self.angles[km] - a))
-        nearest = np.where(dk <= dkm, k, km)
-        on_silent = self.silent[nearest] & (np.minimum(dk, dkm) <= self.tolerance_rad)
-        r = np.hypot(points[:, 0], points[:, 1])
+        nearest, gap, r = self._nearest_beam(points)
+        on_silent = self.silent[nearest] & (gap <= self.tolerance_rad)
         towards_hearer = np.einsum("ij,ij->i", np.asarray(seen_from, dtype=np.float64)[None, :] - points, normals)
         faces = normals * np.where(towards_hearer < 0, -1.0, 1.0)[:, None]
         cos_here = np.einsum("ij,ij->i", -points, faces) / np.maximum(r, 1e-9)
@@ -510,17 +506,19 @@ class FreeSpace:
     def _nearest(self, points: np.ndarray, ranges: np.ndarray):
         """For every point: the nearest beam, whether it is within the bearing tolerance and ``ranges``
         holds a range on it, the point's range and that range."""
+        nearest, gap, r = self._nearest_beam(points)
+        r_echo = ranges[nearest]
+        checked = (gap <= self.tolerance_rad) & np.isfinite(r_echo)
+        return nearest, checked, r, r_echo
+
+    def _nearest_beam(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For every point: the nearest beam, the bearing between them and the point's range."""
         a = np.mod(np.arctan2(points[:, 1], points[:, 0]), 2 * np.pi)
         k = np.searchsorted(self.angles, a) % len(self.angles)
         km = (k - 1) % len(self.angles)
         dk = np.abs(wrap_angle(self.angles[k] - a))
         dkm = np.abs(wrap_angle(self.angles[km] - a))
-        nearest = np.where(dk <= dkm, k, km)
-        gap = np.minimum(dk, dkm)
-        r_echo = ranges[nearest]
-        checked = (gap <= self.tolerance_rad) & np.isfinite(r_echo)
-        r = np.hypot(points[:, 0], points[:, 1])
-        return nearest, checked, r, r_echo
+        return np.where(dk <= dkm, k, km), np.minimum(dk, dkm), np.hypot(points[:, 0], points[:, 1])
 
 
 def erosion_reach(angles: np.ndarray, beam_width_rad: float) -> float:
@@ -642,7 +640,9 @@ class ReferenceModel:
         """Fit of the moving scan placed by ``pose``, checked both ways: when the reference-onto-moving
         inlier share is the smaller one it is used (with the smaller of the two inlier counts and
         constraints); the free-space violation ratio is the larger of the two directions, counted over
-        the wall points each sonar could have seen face-on (:meth:`FreeSpace.violations`)."""
+        the wall points each sonar could have seen face-on (:meth:`FreeSpace.violations`). The longest
+        stretch of wall in the other's water counts too the wall points turned towards the other sonar
+        on bearings where it heard nothing (:meth:`FreeSpace.unheard_facing`)."""
         src = scan_points(moving)
         moved = transform(src, pose)
         home = inverse(pose)
