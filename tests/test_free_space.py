@@ -265,14 +265,14 @@ def test_a_wall_facing_the_sonar_where_it_heard_nothing_contradicts_the_pose():
 
 def test_silence_says_nothing_of_a_wall_from_behind_obliquely_far_or_on_a_heard_beam():
     """The back of that wall (the other sonar beyond it, as beside an opening the beam looks through),
-    the same wall turned 60° from the ray, one beyond half the sonar's hearing, and one on beams that
+    the same wall turned 60° from the ray, one beyond three quarters of its hearing, and one on beams that
     heard an echo are no contradiction."""
     free = FreeSpace(opening_scan())
     points, normals = wall_across(2.0)
     assert not free.unheard_facing(points, normals, seen_from=np.array([3.0, 0.0])).any()
     oblique = np.tile([[math.cos(math.radians(60.0)), math.sin(math.radians(60.0))]], (len(points), 1))
     assert not free.unheard_facing(points, oblique, seen_from=np.array([0.0, 0.0])).any()
-    far, far_normals = wall_across(4.5)
+    far, far_normals = wall_across(6.0)
     assert not free.unheard_facing(far, far_normals, seen_from=np.array([1.0, 0.0])).any()
     turned = points @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # the same wall about bearing 90°: heard beams
     assert not free.unheard_facing(turned, normals @ np.array([[0.0, 1.0], [-1.0, 0.0]]),

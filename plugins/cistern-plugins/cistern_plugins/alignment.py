@@ -357,8 +357,11 @@ walls lie beyond what the sonar hears (a chamber larger than the range), not beh
 FACE_ON_DEG = 30.0
 """A wall met within this angle of its normal answers a sonar strongly (:meth:`FreeSpace.unheard_facing`):
 a smooth wall's echo falls by some 15 dB towards grazing incidence, not near its normal."""
-HEARD_SHARE = 0.5
-"""Such a wall is heard surely within this share of :func:`open_water_m` (:meth:`FreeSpace.unheard_facing`)."""
+HEARD_SHARE = 0.75
+"""Such a wall is heard surely within this share of :func:`open_water_m` (:meth:`FreeSpace.unheard_facing`),
+itself three quarters of the range: a face-on wall within 0.56 of the range. (A half, tried first, left a
+chamber laid 8.3 m off on its twin whose contradicting wall lay at 0.51 of the range;
+``benchmarks/RESULTS.md``, "silence facing a wall".)"""
 
 
 def open_water_m(scan: RangeScan) -> float:
