@@ -465,10 +465,9 @@ class FreeSpace:
             return np.zeros(len(points), dtype=bool)
         nearest, gap, r = self._nearest_beam(points)
         on_silent = self.silent[nearest] & (gap <= self.tolerance_rad)
-        towards_hearer = np.einsum("ij,ij->i", np.asarray(seen_from, dtype=np.float64)[None, :] - points, normals)
-        faces = normals * np.where(towards_hearer < 0, -1.0, 1.0)[:, None]
-        cos_here = np.einsum("ij,ij->i", -points, faces) / np.maximum(r, 1e-9)
-        face_on = cos_here >= math.cos(math.radians(FACE_ON_DEG))
+        cos_here = np.einsum("ij,ij->i", -points, normals) / np.maximum(r, 1e-9)
+        cos_hearer = np.einsum("ij,ij->i", np.asarray(seen_from, dtype=np.float64)[None, :] - points, normals)
+        face_on = (np.abs(cos_here) >= math.cos(math.radians(FACE_ON_DEG))) & (cos_here * cos_hearer > 0)
         return on_silent & face_on & (r <= HEARD_SHARE * self.hearing_m) & ~self.shadowed(points)
 
     def shadowed(self, points: np.ndarray) -> np.ndarray:
