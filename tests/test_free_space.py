@@ -239,13 +239,13 @@ def test_a_cloud_gathered_along_a_track_shows_no_free_space():
     assert not FreeSpace(cloud).visible(point_at(200.0, 5.5), tolerance_m=0.1)[0]
 
 
-def opening_scan() -> RangeScan:
-    """A full turn at 0.9° steps hearing walls 3 m off, but for 15 beams about bearing 0 that heard
-    nothing: an opening the sonar looks through."""
+def opening_scan(walls_m: float = 3.0, max_range_m: float = 10.0) -> RangeScan:
+    """A full turn at 0.9° steps hearing walls ``walls_m`` off, but for 15 beams about bearing 0 that
+    heard nothing: an opening the sonar looks through."""
     bearings = np.radians(np.arange(0.0, 360.0, 0.9))
-    ranges = np.full(len(bearings), 3.0)
+    ranges = np.full(len(bearings), walls_m)
     ranges[np.abs(wrap_angle(bearings)) <= math.radians(6.5)] = np.nan
-    return RangeScan(bearings_rad=bearings, ranges_m=ranges, yaw_rad=0.0, depth_m=1.0, max_range_m=10.0,
+    return RangeScan(bearings_rad=bearings, ranges_m=ranges, yaw_rad=0.0, depth_m=1.0, max_range_m=max_range_m,
                      bin_size_m=0.04, beam_width_rad=math.radians(3.0))
 
 
@@ -277,3 +277,20 @@ def test_silence_says_nothing_of_a_wall_from_behind_obliquely_far_or_on_a_heard_
     turned = points @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # the same wall about bearing 90°: heard beams
     assert not free.unheard_facing(turned, normals @ np.array([[0.0, 1.0], [-1.0, 0.0]]),
                                    seen_from=np.array([0.0, 1.0])).any()
+
+
+def test_silence_between_two_echoes_is_heard_as_far_as_they_are():
+    """The opening's jambs heard 5.3 m off on either side of the silence, at 0.9 of a 6 m range: a wall
+    across it at 5.4 m, facing the sonar, would have answered as they did, though it lies beyond the
+    share of the range a silent beam vouches for by itself (``HEARD_SHARE`` of ``open_water_m``: 3.4 m).
+    One 10 % farther than the jambs, or beyond where the segmentation could tell a wall at all
+    (``detection_range_m``: the end of the range holds no shadow), says nothing."""
+    scan = opening_scan(walls_m=5.3, max_range_m=6.0)
+    behind = np.array([6.5, 0.0])  # the other sonar, beyond the wall in the twin chamber's frame
+    for x_m, answers in ((5.4, True), (5.9, False)):
+        points, normals = wall_across(x_m)
+        assert FreeSpace(scan).unheard_facing(points, normals, seen_from=np.array([x_m - 0.5, 0.0])).all() == answers
+        assert not FreeSpace(scan).unheard_facing(points, normals, seen_from=behind).any()
+    points, normals = wall_across(5.4)
+    deaf_end = dataclasses.replace(scan, detection_range_m=5.35)
+    assert not FreeSpace(deaf_end).unheard_facing(points, normals, seen_from=np.array([4.9, 0.0])).any()

@@ -384,7 +384,27 @@ def test_shadow_takes_little_noise_beyond_the_walls_at_a_long_range(seed, monkey
     assert hit >= hit_unchecked - 0.015
     # where the noise passes the threshold by itself, silence says nothing: well short of the 20 m range
     assert 6.0 < scan.detection_range_m < 12.0
-    assert math.isinf(unchecked.detection_range_m)
+    # without the noise's limit, only the end of the range, where no shadow can be seen behind a wall
+    assert 19.0 < unchecked.detection_range_m < sim.scan.max_range_m
+
+
+def test_the_last_bins_of_the_range_hold_no_wall_and_set_the_detection_range():
+    """A wall whose shadow window would run past the last bin is never detected: the scan's
+    ``detection_range_m`` ends before it, so a beam that heard nothing there says nothing of walls."""
+    guard, trail = 2, 15
+    last = segmentation.last_testable_bin(100, guard, trail)
+    offsets = np.arange(guard + 1, guard + 1 + trail)
+    assert 2 * np.sum(last + offsets < 100) >= offsets.size
+    assert 2 * np.sum(last + 1 + offsets < 100) < offsets.size
+    settings = Segmentation(method="shadow", min_range_m=0.4)
+    for half_m, heard in ((5.0, True), (5.8, False)):  # walls face-on at 5.0 m, or 5.8 m of a 6 m range
+        room = [np.array([[-half_m, -half_m], [half_m, -half_m], [half_m, half_m], [-half_m, half_m]])]
+        sim = simulate_scan(room, TruePose("s", 0.0, 0.0, 0.0, 1.0), SonarSpec(range_m=6.0, bins=300),
+                            EffectsSpec(), np.random.default_rng(1), water_depth_m=2.0)
+        scan = segment(sim.scan, settings)
+        assert scan.detection_range_m < 5.7  # never beyond the last bin with a shadow's window behind it
+        face_on = np.abs(np.sin(2 * np.asarray(scan.bearings_rad))) < 0.3  # within about 9° of a wall's normal
+        assert np.mean(np.isfinite(scan.ranges_m[face_on])) > 0.9 if heard else not np.isfinite(scan.ranges_m[face_on]).any()
 
 
 def test_noise_limited_starts_where_the_level_stays_above_the_threshold_to_the_end():

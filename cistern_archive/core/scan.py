@@ -181,8 +181,9 @@ class RangeScan:
     detection_range_m : float
         How far the segmentation could tell a wall from the receiver's noise: beyond it the noise,
         lifted by the time-varying gain, passes the detection threshold by itself on most beams
-        (:func:`cistern_archive.sonar.segmentation.noise_limited`), so a beam that heard nothing there
-        says nothing about walls. ``inf`` when the noise never gets there, or it is not known.
+        (:func:`cistern_archive.sonar.segmentation.noise_limited`), or where the range leaves too little
+        water behind a wall to see its shadow (:func:`cistern_archive.sonar.segmentation.last_testable_bin`),
+        so a beam that heard nothing there says nothing about walls. ``inf`` when it is not known.
     rays_from_station : bool
         Whether every echo was heard on a beam from the station, so that the water between the station
         and the echo was seen empty (a stationary scan). ``False`` for a cloud of echoes a moving

@@ -91,7 +91,8 @@ Three methods, chosen by :class:`cistern_archive.catalog.models.Segmentation`:
        20 m in cisterns of 10 m (4 cm bins) the rule's first three tests had taken that noise for walls on
        a few beams per scan, metres behind the rock, most of them just before the end of the range
        (``benchmarks/RESULTS.md``, "2026-12-06 (session 12)"); one neighbour was not witness enough, two
-       neighbours' noise meeting by chance that often. The range where this begins is the scan's
+       neighbours' noise meeting by chance that often. The range where this begins, or the end of the
+       range less the shadow's half window (step 3) where that comes first, is the scan's
        ``detection_range_m``: beyond it a beam's silence says nothing;
     6. the **first** detection beyond ``min_range_m`` (not the strongest: multipath ghosts arrive later
        and may be stronger; a ghost casts no shadow over the wall in front of it) starts the echo, which
@@ -383,8 +384,7 @@ def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, gu
     times, evenly, which keeps the cost bounded on heads with over a thousand bins.
     """
     n_bins = smooth.shape[1]
-    step = max(1, trail // 16)
-    offsets = np.arange(guard + 1, guard + 1 + trail, step)
+    offsets = _trail_offsets(guard, trail)
     idx = bins[:, None] + offsets[None, :]
     inside = idx < n_bins
     samples = np.where(inside, smooth[beams[:, None], np.minimum(idx, n_bins - 1)], np.nan)
@@ -393,6 +393,18 @@ def _trailing_median(smooth: np.ndarray, beams: np.ndarray, bins: np.ndarray, gu
     if enough.any():
         out[enough] = np.nanmedian(samples[enough], axis=1)
     return out
+
+
+def _trail_offsets(guard: int, trail: int) -> np.ndarray:
+    """The bins, after a candidate's, whose median is the water behind it (:func:`_trailing_median`)."""
+    return np.arange(guard + 1, guard + 1 + trail, max(1, trail // 16))
+
+
+def last_testable_bin(n_bins: int, guard: int, trail: int) -> int:
+    """The last bin with at least half of its trailing window inside the range (:func:`_trailing_median`):
+    beyond it no shadow can be seen, so no wall is detected (-1 when no bin has one)."""
+    offsets = _trail_offsets(guard, trail)
+    return n_bins - 1 - int(offsets[(offsets.size + 1) // 2 - 1])
 
 
 def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False,
@@ -412,8 +424,10 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_wa
         The image smoothed over 0.12 m along each beam, normalised to 0..255 by its maximum beyond
         ``min_range_m``.
     detection_range_m : float
-        Where the receiver noise begins to pass ``threshold`` by itself (:func:`noise_limited`; ``inf``
-        when it never does or the scan is no full turn).
+        Where the receiver noise begins to pass ``threshold`` by itself (:func:`noise_limited`, on a full
+        turn), and no farther than the last bin that has a shadow's window behind it
+        (:func:`last_testable_bin`: the last ``SHADOW_GUARD_M + SHADOW_TRAIL_M / 2`` of the range hold
+        no walls).
 
     Every window is taken ``unit`` times as long (:func:`window_unit`).
     """
@@ -438,7 +452,8 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_wa
     depth = smooth[beams, bins] - behind
     detections = np.zeros_like(candidates)
     detections[beams, bins] = depth >= SHADOW_MARGIN
-    reach = float("inf")
+    last = last_testable_bin(smooth.shape[1], guard, trail)
+    reach = float(scan.bin_centres_m[last]) if last >= 0 else 0.0
     echo_bins = _bins(SHADOW_ECHO_M, bin_m)
     if turn:
         if faint_walls:
@@ -449,7 +464,7 @@ def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_wa
         if noisy.any():
             confirmed = beside_both_neighbours(detections, scan.bearings_rad, echo_bins)
             detections[:, noisy] &= confirmed[:, noisy]
-            reach = float(scan.bin_centres_m[int(np.argmax(noisy))])
+            reach = min(reach, float(scan.bin_centres_m[int(np.argmax(noisy))]))
     return detections, np.where(far[None, :], smooth, 0.0), reach
 
 

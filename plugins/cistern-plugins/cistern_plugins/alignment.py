@@ -364,6 +364,17 @@ chamber laid 8.3 m off on its twin whose contradicting wall lay at 0.51 of the r
 ``benchmarks/RESULTS.md``, "silence facing a wall".)"""
 
 
+FLANK_REACH = 1.1
+"""A wall facing a sonar on a beam that heard nothing, no farther than this many times the nearer of
+the two echoes the sonar heard on either side of that beam, would have answered (:meth:`FreeSpace.unheard_facing`):
+10 % farther costs its echo 1.7 dB of spreading loss (``40 log10 1.1``), and a wall met face-on answers
+more strongly than the jambs of an opening, met obliquely, that flank it. The sonar's hearing is then
+shown by the scan itself where the share of its range (``HEARD_SHARE``) assumes the least: a chamber laid
+on its twin, its end wall across the other's tunnel mouth at 0.9 of a 6 m range, the mouth's jambs heard
+at the same range on either side of 17° of silence (``benchmarks/RESULTS.md``, "the silence between two
+echoes")."""
+
+
 def open_water_m(scan: RangeScan) -> float:
     """How far a beam of ``scan`` that heard no wall saw water: ``OPEN_RANGE_SHARE`` of the range, and
     no farther than the scan's ``detection_range_m``, beyond which the receiver's noise hides walls
@@ -424,6 +435,14 @@ class FreeSpace:
         self.silent = ~np.isfinite(ranges) & scan.rays_from_station
         """The beams that heard nothing (:meth:`unheard_facing`)."""
         self.hearing_m = open_water_m(scan)
+        self.flank_m = np.zeros(len(ranges))
+        """On each beam, the nearer of the two echoes heard on either side of it, cyclically
+        (:func:`flanking_echoes`, :meth:`unheard_facing`)."""
+        if np.isfinite(ranges).any():
+            before, after = flanking_echoes(ranges)
+            self.flank_m = np.minimum(ranges[before], ranges[after])
+        self.detectable_m = min(float(scan.detection_range_m), float(scan.max_range_m))
+        """How far the segmentation could have told a wall at all (``RangeScan.detection_range_m``)."""
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -457,7 +476,9 @@ class FreeSpace:
         them (same frame): the face it heard is the one towards it. A beam that heard nothing says
         nothing of walls it would meet obliquely, from behind (the rock beside an opening it looks
         through) or far off (:class:`FreeSpace`); but a wall turned towards it, met within
-        ``FACE_ON_DEG`` of its normal and within that share of its hearing, answers. A stretch of such
+        ``FACE_ON_DEG`` of its normal and within that share of its hearing, or within ``FLANK_REACH`` of
+        the echoes the sonar heard on either side of the beam (:attr:`flank_m`) and where a wall could be
+        told at all (:attr:`detectable_m`), answers. A stretch of such
         points is a wall laid where this sonar heard none: one chamber's opening set on the solid wall
         of a look-alike chamber, seen through the opening as silence (:meth:`ReferenceModel.assess_pair`).
         """
@@ -468,7 +489,9 @@ class FreeSpace:
         cos_here = np.einsum("ij,ij->i", -points, normals) / np.maximum(r, 1e-9)
         cos_hearer = np.einsum("ij,ij->i", np.asarray(seen_from, dtype=np.float64)[None, :] - points, normals)
         face_on = (np.abs(cos_here) >= math.cos(math.radians(FACE_ON_DEG))) & (cos_here * cos_hearer > 0)
-        return on_silent & face_on & (r <= HEARD_SHARE * self.hearing_m) & ~self.shadowed(points)
+        flanked = np.minimum(FLANK_REACH * self.flank_m[nearest], self.detectable_m)
+        reach = np.maximum(HEARD_SHARE * self.hearing_m, flanked)
+        return on_silent & face_on & (r <= reach) & ~self.shadowed(points)
 
     def shadowed(self, points: np.ndarray) -> np.ndarray:
         """Mask of points behind a wall (one of ``points`` itself) closer to this sonar than
@@ -583,17 +606,25 @@ def silent_water(scan: RangeScan, open_sector_rad: float) -> RangeScan:
     if heard.all() or not heard.any():
         return scan
     n = len(ranges)
-    index = np.arange(n)
-    twice = np.concatenate([index, index + n])  # two turns, to look round the end cyclically
-    heard2 = np.tile(heard, 2)
-    before = np.maximum.accumulate(np.where(heard2, twice, -1))[n:] % n  # the last heard beam up to each
-    after = np.minimum.accumulate(np.where(heard2, twice, 2 * n)[::-1])[::-1][:n] % n  # the next from each
+    before, after = flanking_echoes(ranges)
     reach = open_water_m(scan)
     flanks = np.minimum(np.maximum(ranges[before], ranges[after]), reach)
     wide = silent_runs(angles[order], heard, open_sector_rad)
     filled = np.empty(n)
     filled[order] = np.where(heard, ranges, np.where(wide, reach, flanks))
     return replace(scan, ranges_m=filled)
+
+
+def flanking_echoes(ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every beam of ``ranges`` (sorted by bearing, ``nan`` where a beam heard nothing, at least one
+    heard), the index of the last beam up to it that heard an echo and of the next one from it,
+    cyclically; a beam that heard one is its own on both sides."""
+    n = len(ranges)
+    heard = np.tile(np.isfinite(ranges), 2)
+    index = np.arange(2 * n)  # two turns, to look round the end cyclically
+    before = np.maximum.accumulate(np.where(heard, index, -1))[n:] % n
+    after = np.minimum.accumulate(np.where(heard, index, 2 * n)[::-1])[::-1][:n] % n
+    return before, after
 
 
 def _cone_minimum(angles: np.ndarray, ranges: np.ndarray, half_cone_rad: float) -> np.ndarray:
