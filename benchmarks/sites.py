@@ -94,7 +94,6 @@ from cistern_archive.catalog.loader import load_record, record_paths  # noqa: E4
 from cistern_archive.catalog.models import StageChoice  # noqa: E402
 from cistern_archive.evaluation import aligned_positions, in_compass_frame, position_errors as aligned_errors  # noqa: E402
 from cistern_archive.evaluation import reference_frame_errors, strict_json, wilson_interval  # noqa: E402
-from cistern_archive.pipeline.intervals import Z95  # noqa: E402
 from cistern_archive.pipeline.registry import default_registry  # noqa: E402
 from cistern_archive.pipeline.runner import build_site, match_pair, record_ties, resolve_stages  # noqa: E402
 from cistern_archive.sonar.geometry import interpolate_slice, overlap_fraction, shared_wall_fraction  # noqa: E402
@@ -343,15 +342,15 @@ def score_build(loaded, build, catalog: Path, seconds: float, far_limit: int = 0
 def join_errors(poses, truth: SiteTruth) -> list[dict]:
     """Each join of groups (:attr:`~cistern_archive.core.poses.Poses.group_links`): its stations, how far
     the second lies from where it belongs relative to the first after the rigid alignment of the placed
-    scans onto the truth, and the join's 95 % half-width (the site's ``group_link_ci95_m``)."""
+    scans onto the truth, and the join's 95 % radius (the site's ``group_link_ci95_m``)."""
     if poses is None or not poses.group_links:
         return []
     placed = np.flatnonzero(poses.placed)
     aligned = dict(zip(placed, aligned_positions(np.asarray(poses.xy_m)[placed], truth.xy[placed])))
     stations = [s.station for s in truth.scans]
-    return [{"stations": [stations[i], stations[j]], "ci95_m": Z95 * sigma,
+    return [{"stations": [stations[i], stations[j]], "ci95_m": radius,
              "error_m": float(np.hypot(*((aligned[j] - aligned[i]) - (truth.xy[j] - truth.xy[i]))))}
-            for (i, j), sigma in zip(poses.group_links, poses.group_link_sigma_m)]
+            for (i, j), radius in zip(poses.group_links, poses.group_link_radius95_m)]
 
 
 def right(pair: dict) -> bool:

@@ -374,10 +374,10 @@ def test_sites_benchmark_scores_a_join_against_its_interval():
     rotation = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
     poses = Poses(xy_m=estimated @ rotation.T + [3.0, -1.0], yaw_rad=np.zeros(4), placed=np.ones(4, bool),
                   reasons=("",) * 4, reference=0, covariance=np.tile(np.eye(3), (4, 1, 1)),
-                  group_links=((1, 2),), group_link_sigma_m=(0.05,))
+                  group_links=((1, 2),), group_link_radius95_m=(0.1,))
     truth = SimpleNamespace(xy=truth_xy, scans=[SimpleNamespace(station=s) for s in ("a1", "a2", "b1", "b2")])
     (join,) = join_errors(poses, truth)
     assert join["stations"] == ["a2", "b1"]
     assert join["error_m"] == pytest.approx(0.2, abs=0.005)  # the alignment turns the whole a little
-    assert join["ci95_m"] == pytest.approx(1.96 * 0.05, abs=1e-3) and join["error_m"] > join["ci95_m"]
+    assert join["ci95_m"] == pytest.approx(0.1) and join["error_m"] > join["ci95_m"]
     assert join_errors(None, truth) == []

@@ -106,9 +106,9 @@ def test_site_graph_joins_the_two_chambers_no_match_could_join():
     assert np.abs(error[:, 1]).max() < 0.05 and np.abs(error[:, 0]).max() < 0.2  # x: along the tunnel
     (i, j), = poses.group_links  # the join is reported, between the stations nearest across it
     assert (i, j) == (2, 3)
-    (sigma,) = poses.group_link_sigma_m  # with how well it places the two groups against each other
+    (radius,) = poses.group_link_radius95_m  # with how well it places the two groups against each other
     offset = np.abs(error[3:, 0] - error[2, 0])  # the east group's error along the tunnel, against the west's
-    assert offset.max() - offset.min() < 0.02 and 0.05 < sigma and offset.max() < 1.96 * sigma
+    assert offset.max() - offset.min() < 0.02 and 0.1 < radius and offset.max() < radius
     alone = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_fit=False))
     assert alone.placed.tolist() == [True] * 3 + [False] * 3
     graph = consistent_edges(scans, matches, SiteGraphParams(group_min_score=1e6))
@@ -118,7 +118,7 @@ def test_site_graph_joins_the_two_chambers_no_match_could_join():
 def test_a_site_three_times_as_large_is_joined_as_the_one_it_was_drawn_from():
     """The two chambers above three times as large in every length (walls, stations, range, bins), at a
     length unit of 3: the group fit joins them as it joined the smaller site, at three times the offsets,
-    and reports the join's sigma along the tunnel three times as wide; held to the lengths in metres it
+    and reports the join's 95 % radius three times as wide; held to the lengths in metres it
     reports a third of that (its score's profile stepped out as far as the smaller site's, inside the
     larger tunnel's flat stretch): a join three times surer than it is. Its own unit, from the range of
     its walls, lies between."""
@@ -136,9 +136,9 @@ def test_a_site_three_times_as_large_is_joined_as_the_one_it_was_drawn_from():
     b = SiteGraphLocalizer().localize(*large, SiteGraphParams(length_unit=3.0))
     assert a.placed.all() and b.placed.all()
     np.testing.assert_allclose(b.xy_m - b.xy_m[0], 3 * (a.xy_m - a.xy_m[0]), atol=0.05)
-    assert b.group_link_sigma_m[0] == pytest.approx(3 * a.group_link_sigma_m[0], rel=0.1)
+    assert b.group_link_radius95_m[0] == pytest.approx(3 * a.group_link_radius95_m[0], rel=0.1)
     in_metres = SiteGraphLocalizer().localize(*large, SiteGraphParams(length_unit=1.0))
-    assert in_metres.group_link_sigma_m[0] < 0.4 * b.group_link_sigma_m[0]
+    assert in_metres.group_link_radius95_m[0] < 0.4 * b.group_link_radius95_m[0]
 
 
 def test_a_search_peak_the_refinement_does_not_confirm_is_refused():
@@ -339,7 +339,7 @@ def test_a_station_inside_the_tunnel_joins_the_chambers_on_either_side():
     assert poses.placed.all()
     error = (poses.xy_m - poses.xy_m[0]) - (np.asarray(positions) - positions[0])
     assert np.abs(error).max() < 0.1
-    assert sorted(poses.group_links) == [(2, 3), (4, 3)] and all(0.03 < s < 0.15 for s in poses.group_link_sigma_m)
+    assert sorted(poses.group_links) == [(2, 3), (4, 3)] and all(0.06 < r < 0.37 for r in poses.group_link_radius95_m)
     apart = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_passages=False))
     assert apart.placed.tolist() == [True] * 3 + [False] * 4
 

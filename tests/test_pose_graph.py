@@ -74,13 +74,13 @@ def test_reference_is_in_the_largest_group():
     assert poses.placed[:4].all() and not poses.placed[5:].any() and not poses.placed[4]
 
 
-def test_relative_sigma_is_the_uncertainty_of_one_scan_against_another_not_against_the_reference():
+def test_relative_radius_is_the_uncertainty_of_one_scan_against_another_not_against_the_reference():
     """A chain 0 → 1 → 2 whose links are uncertain by 0.1 m along and 0.2 m across: scan 2 against scan 1
-    is uncertain by exactly its link's 0.2 m however far the chain has drifted from the reference, and
-    against the reference by more (the two links, and scan 1's turn swinging the second)."""
+    is uncertain by exactly its link's (0.1 m, 0.2 m) however far the chain has drifted from the reference,
+    and against the reference by more (the two links, and scan 1's turn swinging the second)."""
     import gtsam
 
-    from cistern_plugins.factor_graph import relative_sigma_m
+    from cistern_plugins.factor_graph import radius95_m, relative_radius95_m
 
     graph = gtsam.NonlinearFactorGraph()
     link = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1, 0.2, 0.01]))
@@ -92,5 +92,17 @@ def test_relative_sigma_is_the_uncertainty_of_one_scan_against_another_not_again
         values.insert(k, pose)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     marginals = gtsam.Marginals(graph, result)
-    assert relative_sigma_m(marginals, result, 1, 2) == pytest.approx(0.2, rel=1e-3)
-    assert relative_sigma_m(marginals, result, 0, 2) > 0.25
+    assert relative_radius95_m(marginals, result, 1, 2) == pytest.approx(radius95_m(np.diag([0.01, 0.04])), rel=1e-3)
+    assert relative_radius95_m(marginals, result, 0, 2) > 0.5
+
+
+def test_the_95_percent_radius_holds_95_percent_of_a_2d_error():
+    """``1.96 σ`` of the least certain direction when the other is certain, ``2.45 σ`` when both are
+    alike, and in between the radius that 95 % of drawn errors fall within."""
+    from cistern_plugins.factor_graph import radius95_m
+
+    assert radius95_m(np.diag([1e-12, 0.04])) == pytest.approx(1.96 * 0.2, rel=1e-3)
+    assert radius95_m(np.diag([0.04, 0.04])) == pytest.approx(2.4477 * 0.2, rel=1e-3)
+    cov = np.array([[0.02, 0.01], [0.01, 0.03]])
+    errors = np.random.default_rng(3).multivariate_normal([0.0, 0.0], cov, size=200_000)
+    assert np.quantile(np.hypot(errors[:, 0], errors[:, 1]), 0.95) == pytest.approx(radius95_m(cov), rel=0.01)

@@ -602,7 +602,7 @@ def test_map_marks_the_joins_of_groups_fitted_as_wholes(tmp_path):
     xy = np.array([[0.0, 0.0], [2.0, 0.0], [6.0, 1.0]])
     failed = [MatchResult(1, 2, 4.0, 1.0, 0.0, 0.1, False, 1, 0.0, reason="ambiguous")]
     plain = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0)
-    fitted = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0, group_links=((1, 2),), group_link_sigma_m=(0.2,))
+    fitted = Poses(xy, np.zeros(3), np.ones(3, bool), ("", "", ""), 0, group_links=((1, 2),), group_link_radius95_m=(0.39,))
     without = map_figure(tmp_path / "a.png", None, plain, failed, ["s1", "s2", "s3"], dpi=60)
     with_fit = map_figure(tmp_path / "b.png", None, fitted, failed, ["s1", "s2", "s3"], dpi=60)
     assert "fitting each group" not in without.caption

@@ -28,9 +28,9 @@ class Poses:
         Pairs of scans whose groups the localizer joined by fitting the groups as wholes, where no match
         of any two of their scans could (``site-graph``'s group fits); each pair is the two scans that
         lie nearest each other across the join.
-    group_link_sigma_m : tuple of float
-        For each group link, the standard deviation (m) of the two scans' relative position along its
-        least certain direction, from the localizer's joint covariance (``nan`` when it estimates none):
+    group_link_radius95_m : tuple of float
+        For each group link, the radius (m) within which the second scan's position relative to the first
+        lies with 95 % probability, from the localizer's joint covariance (``nan`` when it estimates none):
         how well the join places the two groups against each other.
     """
 
@@ -41,4 +41,4 @@ class Poses:
     reference: int
     covariance: np.ndarray | None = None
     group_links: tuple[tuple[int, int], ...] = ()
-    group_link_sigma_m: tuple[float, ...] = ()
+    group_link_radius95_m: tuple[float, ...] = ()

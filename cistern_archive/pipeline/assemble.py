@@ -15,7 +15,7 @@ from cistern_archive.catalog.models import ScanRef, SiteRecord
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.grid.lean import wall_lean_deg
 from cistern_archive.pipeline.contracts import DimensionRow, MatchGuess, Poses
-from cistern_archive.pipeline.intervals import Z95, ci95_half_width
+from cistern_archive.pipeline.intervals import ci95_half_width
 from cistern_archive.pipeline.results import (
     DimensionResult,
     PairResult,
@@ -66,7 +66,7 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
     result.scans = scans
     result.reference_scan = poses.reference if poses is not None and poses.reference >= 0 else None
     links = [] if poses is None else [
-        (labels[i], labels[j], _ci95(poses.group_link_sigma_m, n)) for n, (i, j) in enumerate(poses.group_links)
+        (labels[i], labels[j], _ci95(poses.group_link_radius95_m, n)) for n, (i, j) in enumerate(poses.group_links)
         if 0 <= i < len(labels) and 0 <= j < len(labels)]
     result.group_links = [(a, b) for a, b, _ in links]
     result.group_link_ci95_m = [ci for _, _, ci in links]
@@ -106,9 +106,9 @@ def assemble_result(build: SiteBuild, loaded: LoadedRecord, plugins: Sequence[Pl
     return result
 
 
-def _ci95(sigmas: Sequence[float], n: int) -> float | None:
-    """The 95 % half-width (m) of the ``n``-th group link from its standard deviation, ``None`` when unknown."""
-    return finite_or_none(Z95 * sigmas[n]) if n < len(sigmas) else None
+def _ci95(radii: Sequence[float], n: int) -> float | None:
+    """The 95 % radius (m) of the ``n``-th group link, ``None`` when unknown."""
+    return finite_or_none(radii[n]) if n < len(radii) else None
 
 
 def scan_entries(build: SiteBuild) -> list[ScanRef]:

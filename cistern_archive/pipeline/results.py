@@ -153,8 +153,8 @@ class SiteResult(Model):
     group_links: list[tuple[str, str]] = Field(default_factory=list, description="stations whose groups of "
                                                "scans were joined by fitting the groups as wholes, not by a match")
     group_link_ci95_m: list[float | None] = Field(default_factory=list, description="for each group link, the "
-                                                  "95 % half-width (m) of its two stations' relative position "
-                                                  "along its least certain direction")
+                                                  "radius (m) within which its two stations' relative position "
+                                                  "lies with 95 % probability")
     dimensions: list[DimensionResult] = Field(default_factory=list)
     dimension_stats: dict[str, float | None] = Field(default_factory=dict)
     map_stats: dict[str, float] = Field(default_factory=dict)

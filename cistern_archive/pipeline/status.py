@@ -59,8 +59,8 @@ by 0.94 m; probed from a station of its own chamber it came out 0.005 m off, and
 0.68 m; the other demo dimensions by 0.009–0.13 m."""
 
 MAX_JOIN_CI95_M = 0.25
-"""A join of two parts of the map whose 95 % half-width (along its least certain direction) exceeds this
-makes the site ``partial``. On random three-chamber cisterns (``benchmarks/sites.py --random``) group fits
+"""A join of two parts of the map whose 95 % radius (the distance within which the one lies from where it
+belongs against the other with 95 % probability) exceeds this makes the site ``partial``. On random three-chamber cisterns (``benchmarks/sites.py --random``) group fits
 along a tunnel seen end to end joined scans 0.17–0.29 m from where they belong with a standard deviation
 of about 0.33 m along the tunnel, and the site was otherwise ``ok``."""
 
@@ -130,7 +130,7 @@ def site_status(*, failed_stage: str | None, scans_placed: Sequence[bool], label
     unmeasured : sequence of str
         Names of the reference dimensions that could not be measured, each with its reason.
     joins : sequence of (str, str, float or None)
-        The stations of each join of groups fitted as wholes with its 95 % half-width in metres
+        The stations of each join of groups fitted as wholes with its 95 % radius in metres
         (``None`` when the localizer gave none); :func:`imprecise_joins` says which are reasons.
     loop_only : sequence of (str, sequence of str)
         Placed stations held in place only by matches to stations recorded apart from them, each with
@@ -211,8 +211,8 @@ def skipped_run_caveat(before: str, after: str, span: str, *, several: bool = Fa
 
 
 def imprecise_joins(joins: Sequence[tuple[str, str, float | None]]) -> list[str]:
-    """The status reasons of joins of groups (stations and 95 % half-width, see :func:`site_status`): each
-    join wider than :data:`MAX_JOIN_CI95_M`; or, when none is, all of them together if their half-widths
+    """The status reasons of joins of groups (stations and 95 % radius, see :func:`site_status`): each
+    join wider than :data:`MAX_JOIN_CI95_M`; or, when none is, all of them together if their radii
     add up (root sum of squares, as independent errors of joins in series do) to more than it. Two scans
     of the map are never separated by more joins than there are, so that sum bounds how far any part of
     the map may be off against any other through its joins."""

@@ -25,7 +25,6 @@ from cistern_archive.core.dimensions import DimensionRow, DimensionTable
 from cistern_archive.core.grids import EvidenceGrid
 from cistern_archive.core.matches import MatchResult
 from cistern_archive.core.poses import Poses
-from cistern_archive.pipeline.intervals import Z95
 from cistern_archive.report.canvas import LINK_BAD, LINK_FIT, LINK_OK, FigureFile, new_figure
 from cistern_archive.report.files import save_figure
 
@@ -163,10 +162,11 @@ def station_span(depths_m: Sequence[float], placed: Sequence[int]) -> str:
 
 
 def join_precision(poses: Poses, labels: Sequence[str]) -> str:
-    """Each group link as ``o1–b1 to ±0.66 m (95 %)``: its 95 % half-width along its least certain direction."""
-    sigmas = list(poses.group_link_sigma_m) + [math.nan] * len(poses.group_links)
-    return ", ".join(f"{labels[i]}–{labels[j]}" + (f" to ±{Z95 * sigma:.2f} m (95 %)" if math.isfinite(sigma) else "")
-                     for (i, j), sigma in zip(poses.group_links, sigmas))
+    """Each group link as ``o1–b1 to ±0.66 m (95 %)``: the radius holding its two stations' relative
+    position with 95 % probability."""
+    radii = list(poses.group_link_radius95_m) + [math.nan] * len(poses.group_links)
+    return ", ".join(f"{labels[i]}–{labels[j]}" + (f" to ±{radius:.2f} m (95 %)" if math.isfinite(radius) else "")
+                     for (i, j), radius in zip(poses.group_links, radii))
 
 
 def stacked_labels(xy: np.ndarray, labels: Sequence[str], *, tolerance_m: float) -> list[tuple[np.ndarray, str]]:

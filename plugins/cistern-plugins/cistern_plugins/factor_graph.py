@@ -22,6 +22,7 @@ from typing import Literal
 
 import gtsam
 import numpy as np
+from scipy.optimize import brentq
 from pydantic import Field
 
 from cistern_archive.core.scan import wrap_angle
@@ -181,7 +182,7 @@ def poses_from_solution(scans: Sequence[RangeScan], graph: gtsam.NonlinearFactor
                         placed_keys: set[int], reference: int, reasons: Sequence[str],
                         links: Sequence[tuple[int, int]] = ()) -> Poses:
     """:class:`Poses` of the solved scans, with marginal covariances rotated into the map frame; ``links``
-    become :attr:`Poses.group_links`, each with its :func:`relative_sigma_m`."""
+    become :attr:`Poses.group_links`, each with its :func:`relative_radius95_m`."""
     n = len(scans)
     yaw = np.array([s.yaw_rad for s in scans], dtype=np.float64)
     placed = np.array([k in placed_keys for k in range(n)])
@@ -196,14 +197,14 @@ def poses_from_solution(scans: Sequence[RangeScan], graph: gtsam.NonlinearFactor
         c, s = math.cos(pose.theta()), math.sin(pose.theta())
         rot[:2, :2] = [[c, -s], [s, c]]
         cov[k] = rot @ marginals.marginalCovariance(k) @ rot.T
-    sigmas = tuple(relative_sigma_m(marginals, result, i, j) for i, j in links)
+    radii = tuple(relative_radius95_m(marginals, result, i, j) for i, j in links)
     return Poses(xy, yaw, placed, tuple("" if placed[k] else reasons[k] for k in range(n)), reference, cov,
-                 group_links=tuple(links), group_link_sigma_m=sigmas)
+                 group_links=tuple(links), group_link_radius95_m=radii)
 
 
-def relative_sigma_m(marginals: gtsam.Marginals, result: gtsam.Values, i: int, j: int) -> float:
-    """Standard deviation (m) of scan ``j``'s position relative to scan ``i`` along its least certain
-    direction, from the two scans' joint marginal covariance.
+def relative_radius95_m(marginals: gtsam.Marginals, result: gtsam.Values, i: int, j: int) -> float:
+    """Radius (m) within which scan ``j``'s position relative to scan ``i`` lies with 95 % probability,
+    from the two scans' joint marginal covariance (:func:`radius95_m`).
 
     With ``T_i`` and ``T_j`` perturbed on the right by ``Exp(d_i)`` and ``Exp(d_j)``, their relative pose
     ``T_i^-1 T_j`` is perturbed by ``d_j - Ad(T_ij^-1) d_i`` (first order), whose covariance follows from
@@ -215,4 +216,29 @@ def relative_sigma_m(marginals: gtsam.Marginals, result: gtsam.Values, i: int, j
     between = result.atPose2(i).between(result.atPose2(j))
     jacobian = np.hstack([-between.inverse().AdjointMap(), np.eye(3)])
     relative = jacobian @ full @ jacobian.T
-    return float(math.sqrt(max(float(np.linalg.eigvalsh(relative[:2, :2])[-1]), 0.0)))
+    return radius95_m(relative[:2, :2])
+
+
+def radius95_m(covariance: np.ndarray, probability: float = 0.95) -> float:
+    """The radius of the circle about the mean that holds a 2-D Gaussian position error with
+    ``probability``: ``1.96 σ`` along the least certain direction when the other is certain, up to
+    ``2.45 σ`` when both are alike (the chi-square of two degrees of freedom).
+
+    A join's error is a distance, not one coordinate: ``1.96 σ`` of its least certain direction held the
+    error of 306 of 335 joins of random cisterns (91.3 %; ``benchmarks/RESULTS.md``, "2026-12-07 (session
+    28) — a join's 95 % radius").
+    With ``λ1, λ2`` the covariance's eigenvalues, a direction ``θ`` of the standard normal plane reaches
+    ``r`` at a squared radius ``r^2 / (λ1 cos^2 θ + λ2 sin^2 θ)``, chi-square with two degrees of freedom,
+    so ``P(|e| <= r)`` is the mean over ``θ`` of ``1 - exp(-r^2 / (2 (λ1 cos^2 θ + λ2 sin^2 θ)))``.
+    """
+    lam = np.clip(np.linalg.eigvalsh(0.5 * (covariance + covariance.T)), 0.0, None)
+    if not np.all(np.isfinite(lam)) or lam[-1] <= 0:
+        return float(math.sqrt(lam[-1])) if np.isfinite(lam[-1]) else math.nan
+    theta = (np.arange(360) + 0.5) * (math.pi / 360)
+    spread = lam[1] * np.cos(theta) ** 2 + lam[0] * np.sin(theta) ** 2
+
+    def held(r: float) -> float:
+        return float(np.mean(1.0 - np.exp(-r * r / (2.0 * spread)))) - probability
+
+    top = math.sqrt(-2.0 * math.log(1.0 - probability) * lam[-1])  # both directions as uncertain
+    return float(brentq(held, 0.0, top * 1.001))

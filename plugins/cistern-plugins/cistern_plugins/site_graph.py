@@ -107,9 +107,9 @@ builds a graph over the whole site instead, in three steps.
    When the gate cuts the reference station off (every edge of it contradicted by the others or by the
    compasses), the largest set of scans the kept edges still join is anchored on its first station and
    solved again: one bad station leaves itself unplaced, not the whole site.
-   ``gtsam.Marginals`` gives each scan's covariance, and each join of groups the standard deviation of its
-   two scans' relative position (``Poses.group_link_sigma_m``): how well the join places the two groups
-   against each other.
+   ``gtsam.Marginals`` gives each scan's covariance, and each join of groups the radius that holds its two
+   scans' relative position with 95 % probability (``Poses.group_link_radius95_m``): how well the join
+   places the two groups against each other.
 
 Every length of these steps — the guided window, the cycle tolerance, the graph's default σ, the wall
 check's limits, the group fits' cells, σ, separation and probes, the clouds' margins and traces — is
