@@ -103,6 +103,7 @@ def test_the_95_percent_radius_holds_95_percent_of_a_2d_error():
 
     assert radius95_m(np.diag([1e-12, 0.04])) == pytest.approx(1.96 * 0.2, rel=1e-3)
     assert radius95_m(np.diag([0.04, 0.04])) == pytest.approx(2.4477 * 0.2, rel=1e-3)
+    assert np.isnan(radius95_m(np.full((2, 2), np.nan))) and radius95_m(np.zeros((2, 2))) == 0.0
     cov = np.array([[0.02, 0.01], [0.01, 0.03]])
     errors = np.random.default_rng(3).multivariate_normal([0.0, 0.0], cov, size=200_000)
     assert np.quantile(np.hypot(errors[:, 0], errors[:, 1]), 0.95) == pytest.approx(radius95_m(cov), rel=0.01)

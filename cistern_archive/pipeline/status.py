@@ -60,9 +60,10 @@ by 0.94 m; probed from a station of its own chamber it came out 0.005 m off, and
 
 MAX_JOIN_CI95_M = 0.25
 """A join of two parts of the map whose 95 % radius (the distance within which the one lies from where it
-belongs against the other with 95 % probability) exceeds this makes the site ``partial``. On random three-chamber cisterns (``benchmarks/sites.py --random``) group fits
-along a tunnel seen end to end joined scans 0.17–0.29 m from where they belong with a standard deviation
-of about 0.33 m along the tunnel, and the site was otherwise ``ok``."""
+belongs against the other with 95 % probability) exceeds this makes the site ``partial``. On random
+three-chamber cisterns (``benchmarks/sites.py --random``) group fits along a tunnel seen end to end joined
+scans 0.17–0.29 m from where they belong with a standard deviation of about 0.33 m along the tunnel, and
+the site was otherwise ``ok``."""
 
 _SCAN_INDEX = re.compile(r"\b(scans?|station index) (\d+)\b")
 _PAIR_INDEX = re.compile(r"\((\d+), ?(\d+)\)(?!\s*m\b)")

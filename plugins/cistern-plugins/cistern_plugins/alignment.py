@@ -371,7 +371,7 @@ the two echoes the sonar heard on either side of that beam, would have answered 
 more strongly than the jambs of an opening, met obliquely, that flank it. The sonar's hearing is then
 shown by the scan itself where the share of its range (``HEARD_SHARE``) assumes the least: a chamber laid
 on its twin, its end wall across the other's tunnel mouth at 0.9 of a 6 m range, the mouth's jambs heard
-at the same range on either side of 17° of silence (``benchmarks/RESULTS.md``, "the silence between two
+at the same range on either side of 9° of silence (``benchmarks/RESULTS.md``, "the silence between two
 echoes")."""
 
 

@@ -22,8 +22,8 @@ from typing import Literal
 
 import gtsam
 import numpy as np
-from scipy.optimize import brentq
 from pydantic import Field
+from scipy.optimize import brentq
 
 from cistern_archive.core.scan import wrap_angle
 from cistern_archive.pipeline.contracts import MatchResult, Poses, StageParams
@@ -226,14 +226,16 @@ def radius95_m(covariance: np.ndarray, probability: float = 0.95) -> float:
 
     A join's error is a distance, not one coordinate: ``1.96 σ`` of its least certain direction held the
     error of 306 of 335 joins of random cisterns (91.3 %; ``benchmarks/RESULTS.md``, "2026-12-07 (session
-    28) — a join's 95 % radius").
-    With ``λ1, λ2`` the covariance's eigenvalues, a direction ``θ`` of the standard normal plane reaches
-    ``r`` at a squared radius ``r^2 / (λ1 cos^2 θ + λ2 sin^2 θ)``, chi-square with two degrees of freedom,
-    so ``P(|e| <= r)`` is the mean over ``θ`` of ``1 - exp(-r^2 / (2 (λ1 cos^2 θ + λ2 sin^2 θ)))``.
+    28) — a join's 95 % radius"). With ``λ1, λ2`` the covariance's eigenvalues, a direction ``θ`` of the
+    standard normal plane reaches ``r`` at a squared radius ``r^2 / (λ1 cos^2 θ + λ2 sin^2 θ)``, chi-square
+    with two degrees of freedom, so ``P(|e| <= r)`` is the mean over ``θ`` of
+    ``1 - exp(-r^2 / (2 (λ1 cos^2 θ + λ2 sin^2 θ)))``. ``nan`` for a covariance that is not finite.
     """
+    if not np.all(np.isfinite(covariance)):
+        return math.nan
     lam = np.clip(np.linalg.eigvalsh(0.5 * (covariance + covariance.T)), 0.0, None)
-    if not np.all(np.isfinite(lam)) or lam[-1] <= 0:
-        return float(math.sqrt(lam[-1])) if np.isfinite(lam[-1]) else math.nan
+    if lam[-1] <= 0:
+        return 0.0
     theta = (np.arange(360) + 0.5) * (math.pi / 360)
     spread = lam[1] * np.cos(theta) ** 2 + lam[0] * np.sin(theta) ** 2
 
