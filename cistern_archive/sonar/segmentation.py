@@ -404,7 +404,7 @@ def last_testable_bin(n_bins: int, guard: int, trail: int) -> int:
     """The last bin with at least half of its trailing window inside the range (:func:`_trailing_median`):
     beyond it no shadow can be seen, so no wall is detected (-1 when no bin has one)."""
     offsets = _trail_offsets(guard, trail)
-    return n_bins - 1 - int(offsets[(offsets.size + 1) // 2 - 1])
+    return max(-1, n_bins - 1 - int(offsets[(offsets.size + 1) // 2 - 1]))
 
 
 def shadow_detections(scan: Scan, threshold: float, min_range_m: float, faint_walls: bool = False,

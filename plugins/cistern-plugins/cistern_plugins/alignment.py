@@ -382,6 +382,20 @@ def open_water_m(scan: RangeScan) -> float:
     return min(OPEN_RANGE_SHARE * float(scan.max_range_m), float(scan.detection_range_m))
 
 
+def answering_reach_m(scan: RangeScan, ranges: np.ndarray) -> np.ndarray:
+    """On each beam of ``scan`` (``ranges``: its echoes sorted by bearing), how far a wall turned towards
+    the sonar would surely have answered: ``HEARD_SHARE`` of :func:`open_water_m`, or, farther,
+    ``FLANK_REACH`` times the nearer of the two echoes heard on either side of the beam
+    (:func:`flanking_echoes`), no farther than the segmentation could tell a wall at all
+    (``RangeScan.detection_range_m``) nor than the range."""
+    reach = np.full(len(ranges), HEARD_SHARE * open_water_m(scan))
+    if not np.isfinite(ranges).any():
+        return reach
+    before, after = flanking_echoes(ranges)
+    detectable = min(float(scan.detection_range_m), float(scan.max_range_m))
+    return np.maximum(reach, np.minimum(FLANK_REACH * np.minimum(ranges[before], ranges[after]), detectable))
+
+
 class FreeSpace:
     """The free space one scan observed: on each map-frame bearing, nothing closer than its echo.
 
@@ -434,15 +448,8 @@ class FreeSpace:
         (:meth:`in_free_space`, :meth:`violation_mask`)."""
         self.silent = ~np.isfinite(ranges) & scan.rays_from_station
         """The beams that heard nothing (:meth:`unheard_facing`)."""
-        self.hearing_m = open_water_m(scan)
-        self.flank_m = np.zeros(len(ranges))
-        """On each beam, the nearer of the two echoes heard on either side of it, cyclically
-        (:func:`flanking_echoes`, :meth:`unheard_facing`)."""
-        if np.isfinite(ranges).any():
-            before, after = flanking_echoes(ranges)
-            self.flank_m = np.minimum(ranges[before], ranges[after])
-        self.detectable_m = min(float(scan.detection_range_m), float(scan.max_range_m))
-        """How far the segmentation could have told a wall at all (``RangeScan.detection_range_m``)."""
+        self.answers_within_m = answering_reach_m(scan, ranges)
+        """On each beam, how far a wall facing this sonar would surely have answered (:meth:`unheard_facing`)."""
 
     def violations(self, points: np.ndarray, margin_m: float,
                    normals: np.ndarray | None = None) -> tuple[int, int]:
@@ -476,9 +483,7 @@ class FreeSpace:
         them (same frame): the face it heard is the one towards it. A beam that heard nothing says
         nothing of walls it would meet obliquely, from behind (the rock beside an opening it looks
         through) or far off (:class:`FreeSpace`); but a wall turned towards it, met within
-        ``FACE_ON_DEG`` of its normal and within that share of its hearing, or within ``FLANK_REACH`` of
-        the echoes the sonar heard on either side of the beam (:attr:`flank_m`) and where a wall could be
-        told at all (:attr:`detectable_m`), answers. A stretch of such
+        ``FACE_ON_DEG`` of its normal and within :func:`answering_reach_m` of it, answers. A stretch of such
         points is a wall laid where this sonar heard none: one chamber's opening set on the solid wall
         of a look-alike chamber, seen through the opening as silence (:meth:`ReferenceModel.assess_pair`).
         """
@@ -489,9 +494,7 @@ class FreeSpace:
         cos_here = np.einsum("ij,ij->i", -points, normals) / np.maximum(r, 1e-9)
         cos_hearer = np.einsum("ij,ij->i", np.asarray(seen_from, dtype=np.float64)[None, :] - points, normals)
         face_on = (np.abs(cos_here) >= math.cos(math.radians(FACE_ON_DEG))) & (cos_here * cos_hearer > 0)
-        flanked = np.minimum(FLANK_REACH * self.flank_m[nearest], self.detectable_m)
-        reach = np.maximum(HEARD_SHARE * self.hearing_m, flanked)
-        return on_silent & face_on & (r <= reach) & ~self.shadowed(points)
+        return on_silent & face_on & (r <= self.answers_within_m[nearest]) & ~self.shadowed(points)
 
     def shadowed(self, points: np.ndarray) -> np.ndarray:
         """Mask of points behind a wall (one of ``points`` itself) closer to this sonar than
