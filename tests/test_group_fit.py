@@ -26,6 +26,7 @@ SITE = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 1.5], [6.5, 1.5], [6.5, -0.5], [9
 WEST = [(1.2, 1.0), (3.0, 3.0), (4.4, 2.0)]
 EAST = [(7.2, 2.0), (9.0, 0.8), (10.0, 3.6)]
 TUNNEL = (5.75, 2.0)
+FAR_EAST = [(9.6, 0.8), (10.2, 3.4), (9.4, 2.4)]
 
 
 def _scan(position, rng, station):
@@ -342,6 +343,29 @@ def test_a_station_inside_the_tunnel_joins_the_chambers_on_either_side():
     assert sorted(poses.group_links) == [(2, 3), (4, 3)] and all(0.06 < r < 0.37 for r in poses.group_link_radius95_m)
     apart = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams(group_passages=False))
     assert apart.placed.tolist() == [True] * 3 + [False] * 4
+
+
+def test_a_passage_that_fits_one_side_only_joins_that_side():
+    """The tunnel site with the east chamber's stations at its far end, hearing 2 m only: the tunnel
+    station fits the west chamber's group clearly but shares too little wall with the east's. It joins
+    the west group where it lies; the east group, now visited right after a station of the grown group,
+    is fitted to it as a whole and refused, and its reasons say that fit's verdict (not that the survey
+    visited a station between them, true only before the passage joined)."""
+    rng = np.random.default_rng(9)
+    positions = WEST + [TUNNEL] + FAR_EAST
+    scans = [_scan(p, rng, f"s{k + 1}") for k, p in enumerate(positions)]
+    for k, max_range_m in ((3, 3.0), (4, 2.0), (5, 2.0), (6, 2.0)):
+        heard = polygon_scan([SITE], positions[k], 0.0, rng=rng, n_beams=400, max_range_m=max_range_m)
+        scans[k] = heard.__class__(**{**heard.__dict__, "station": f"s{k + 1}"})
+    matches = [_match(i, j, positions) for i in range(7) for j in range(7)
+               if i != j and 3 not in (i, j) and (i < 3) == (j < 3)]
+    poses = SiteGraphLocalizer().localize(scans, matches, SiteGraphParams())
+    assert poses.placed.tolist() == [True] * 4 + [False] * 3
+    error = (poses.xy_m[:4] - poses.xy_m[0]) - (np.asarray(positions[:4]) - positions[0])
+    assert np.abs(error).max() < 0.1
+    assert poses.group_links == ((2, 3),)
+    assert all("fitted as a group with s1's group: " in poses.reasons[k] for k in (4, 5, 6))
+    assert not any("station between them" in poses.reasons[k] for k in (4, 5, 6))
 
 
 # The west chamber of SITE and a tunnel 3 m long to an east chamber.

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+import cistern_plugins.alignment as alignment
 import cistern_plugins.registration as registration
 from cistern_archive.grid.polygon import polygon_scan
 from cistern_plugins.registration import (
@@ -54,3 +55,24 @@ def test_the_documented_end_of_a_search_matcher():
     assert "inlier" in judge(model.assess_pair(moving, far, p.limits()), p.limits())
     assert refine_point_to_line(model, src, start, iterations=30, correspondence_m=0.3, trim_fraction=0.8,
                                 max_shift_m=0.01) is None  # it would move 6 cm: refused
+
+
+# A room 4 m square with a tunnel 1 m wide leaving its east wall.
+ROOM_AND_TUNNEL = [np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 1.5], [12.0, 1.5], [12.0, 2.5], [4.0, 2.5], [4.0, 4.0],
+                             [0.0, 4.0]])]
+
+
+def test_a_fit_is_not_held_along_a_tunnel_by_walls_that_meet_across_each_other(monkeypatch):
+    """A station in the room and one inside the tunnel, 3 m ranges, at their true poses. The tunnel
+    station hears the tunnel's two walls, which run along it; their ends at the mouth lie on the room's
+    wall beside it, which runs across. Counted as inliers, those points held the fit along the tunnel;
+    only walls that run alike count, and the covariance says the tunnel leaves its length loose."""
+    rng = np.random.default_rng(4)
+    room = polygon_scan(ROOM_AND_TUNNEL, (3.0, 2.0), 0.0, rng=rng, n_beams=400, max_range_m=3.0)
+    tunnel = polygon_scan(ROOM_AND_TUNNEL, (6.0, 2.0), 0.0, rng=rng, n_beams=400, max_range_m=3.0)
+    model, points, pose = ReferenceModel(room), scan_points(tunnel), np.array([3.0, 0.0, 0.0])
+    along, across = np.sqrt(np.diag(fit_covariance(model, points, pose, 0.15, 0.02))[:2])
+    monkeypatch.setattr(alignment, "PARALLEL_DEG", 90.0)  # every inlier counted, whatever its wall
+    along_all, across_all = np.sqrt(np.diag(fit_covariance(model, points, pose, 0.15, 0.02))[:2])
+    assert along > 2 * along_all
+    assert abs(across - across_all) < 0.2 * across_all

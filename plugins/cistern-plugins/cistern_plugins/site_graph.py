@@ -90,8 +90,10 @@ builds a graph over the whole site instead, in three steps.
    stations of a tunnel, visited one after another between a station of each (``group_passages``,
    :func:`~cistern_plugins.site_groups.join_through_passage`) — is fitted to each of the two: the
    passage alone fits every passage of its width, but only one place in each chamber beside it, so it
-   must fit both clearly and to within 0.15 m along any direction, and the far group, placed by the two
-   fits, must pass the wall check. The rounds of fits then go on.
+   joins a side only where it fits that side clearly and to within 0.15 m along any direction. Where it
+   fits both, the far group, placed by the two fits, must pass the wall check; where it fits one, the
+   passage joins that side's group (the wall check judging that join), and the group beyond, visited
+   right after the passage, may then be fitted to the grown group as a whole. The rounds of fits then go on.
 
    Once every join is made, each group is judged again whole (:mod:`cistern_plugins.settled_groups`): a
    join judged when one scan of a look-alike chamber joined a group of three could not weigh the few

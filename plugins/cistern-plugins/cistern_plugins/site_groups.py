@@ -503,7 +503,10 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
     refused are kept in ``graph.unjoined`` for every scan outside the largest group."""
     digest = scans_digest(scans)
     added: list[Edge] = []
+    far_said: list[int] = []
     while True:
+        for k in far_said:  # a round after a join may fit groups a round before kept apart
+            graph.unjoined.pop(k, None)
         groups = sorted(set(graph.group))
         if len(groups) < 2:
             return added
@@ -530,6 +533,7 @@ def join_by_fit(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: S
                         graph.unjoined.setdefault(k, f"fitted as a group with {walls.label(a[0])}'s group: {why}")
                     continue
                 candidates.append((fit.score, a, b, fit))
+        far_said = [k for k, _ in far_apart if k not in graph.unjoined]
         for k, why in far_apart:  # said only of scans no fit gave a reason for
             graph.unjoined.setdefault(k, why)
         for _, a, b, fit in sorted(candidates, key=lambda c: -c[0]):
@@ -575,21 +579,23 @@ def loose_along(fit: GroupFit, unit: float = 1.0) -> str:
 
 def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams,
                          digest: str) -> list[Edge]:
-    """Join the two groups on either side of a passage seen from inside through the passage itself: a
-    group of stations visited one after the other whose walls all run one way (a tunnel's), between a
-    station of one group and the next station of another, is fitted as a whole to each
-    (:func:`passage_edges`), and the two fits place the far group in the near one's frame, which the
-    wall check judges as any join (:func:`merge_checked`). Returns the two edges of the first join made
-    (none when no passage joins two groups). A passage tried and refused says why in ``graph.unjoined``
-    for its stations (more precisely than the fits of groups, which refuse any passage seen from inside)."""
+    """Join the groups on either side of a passage seen from inside through the passage itself: a group
+    of stations visited one after the other whose walls all run one way (a tunnel's), between a station
+    of one group and the next station of another, is fitted as a whole to each (:func:`passage_edges`);
+    where both fits hold they place the far group in the near one's frame, where one holds the passage
+    joins that side alone, and the wall check judges either as any join (:func:`merge_checked`). Returns
+    the edges of the first join made (two, or one for a side alone; none when no passage joins a group).
+    A passage tried and refused says why in ``graph.unjoined`` for its stations (more precisely than the
+    fits of groups, which refuse any passage seen from inside)."""
     for g in sorted(set(graph.group)):
         edges, why = passage_edges(graph, scans, walls, p, digest, g)
         if edges:
-            why = merge_checked(graph, walls, edges)
-            if not why:
+            joined = merge_checked(graph, walls, edges)
+            if not joined:
                 note_fitted(graph, edges)
                 return edges
-            why = f"fitted as a passage between the groups on either side, but {why}"
+            why = (f"fitted as a passage between the groups on either side, but {joined}" if len(edges) == 2 else
+                   f"{why}; fitted as a passage to the other side's group, but {joined}")
         if why:
             for k in graph.members(g):
                 graph.unjoined[k] = why
@@ -599,11 +605,13 @@ def join_through_passage(graph: Graph, scans: Sequence[RangeScan], walls: WallCh
 def passage_edges(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p: SiteGraphParams, digest: str,
                   g: int) -> tuple[list[Edge], str]:
     """The edges of group ``g``'s fits (:func:`group_fit`) to the groups of the stations visited just
-    before and just after it, when ``g`` is a passage seen from inside (its walls run one way) that fits
-    each clearly (:func:`~cistern_plugins.group_fit.accept`, but for its own spread) and to within
-    :data:`PASSAGE_FIT_SIGMA_M`; otherwise none, and why a passage did not fit (empty when ``g`` is no
-    passage between two groups). On its own a passage fits every passage of its width; beside each
-    chamber only at one place."""
+    before and just after it, when ``g`` is a passage seen from inside (its walls run one way) between
+    two groups, for each side it fits clearly (:func:`~cistern_plugins.group_fit.accept`, but for its
+    own spread) and to within :data:`PASSAGE_FIT_SIGMA_M`; and why a side did not fit (empty when ``g``
+    is no passage between two groups, or fits both). On its own a passage fits every passage of its
+    width; beside a chamber visited right before or after it only at one place. A passage that fits one
+    side only joins that side's group: the group beyond may then be fitted to it as a whole, visited
+    right after it (:func:`join_by_fit`)."""
     members = graph.members(g)
     lo, hi = min(members), max(members)
     if hi - lo + 1 != len(members) or lo == 0 or hi == len(scans) - 1:
@@ -612,7 +620,7 @@ def passage_edges(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p:
     if sides[0] == sides[1]:
         return [], ""
     s = p.group_settings()
-    edges = []
+    edges, refused = [], []
     for side in sides:
         a, b = level_members(graph, walls.levels, side, lo), level_members(graph, walls.levels, g, lo)
         if not a or not b:
@@ -622,9 +630,10 @@ def passage_edges(graph: Graph, scans: Sequence[RangeScan], walls: WallCheck, p:
             return [], ""
         why = accept(fit, s, (spreads[0], 1.0)) or loose_along(fit, s.unit)
         if why:
-            return [], f"fitted as a passage to {walls.label(a[0])}'s group: {why}"
-        edges.append(group_edge(graph, a, b, fit))
-    return edges, ""
+            refused.append(f"fitted as a passage to {walls.label(a[0])}'s group: {why}")
+        else:
+            edges.append(group_edge(graph, a, b, fit))
+    return edges, "; ".join(refused)
 
 
 def merge_checked(graph: Graph, walls: WallCheck, edges: Sequence[Edge]) -> str:
