@@ -15,25 +15,15 @@ tunnel station and the chambers beyond it were once left unplaced, each pinned w
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
-
-from cistern_archive.catalog.loader import load_record
-from cistern_archive.evaluation import position_errors
-from cistern_archive.pipeline.runner import build_site
-from cistern_archive.simulation.chambers import random_cisterns, simulate_into, write_specs
 
 
 @pytest.mark.parametrize(("seed", "site", "at_least_placed", "worst_m"), [
     (116, "cistern-009", 10, 0.25),  # was 4 of 10 placed
     (113, "cistern-013", 7, 0.25),   # was 4 of 10 placed
 ])
-def test_a_tunnel_station_joins_the_chamber_it_fits(tmp_path: Path, seed: int, site: str, at_least_placed: int,
+def test_a_tunnel_station_joins_the_chamber_it_fits(random_site_errors, seed: int, site: str, at_least_placed: int,
                                                     worst_m: float):
-    drawn = [c for c in random_cisterns(int(site.split("-")[1]) + 1, seed) if c.spec.id == site]
-    record_path = simulate_into(write_specs(drawn, tmp_path)[0], tmp_path)
-    build = build_site(load_record(record_path, tmp_path))
-    errors = position_errors(build.result)
+    errors = random_site_errors(seed, site)
     assert len(errors) >= at_least_placed, f"{len(errors)} scans placed"
     assert errors.max() <= worst_m, f"a scan placed {errors.max():.2f} m off"
