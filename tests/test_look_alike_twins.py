@@ -10,7 +10,8 @@ built wrong, each pinned where it was found.
 * Seed 113, ``cistern-003``: twin elliptical chambers; the first chamber's end station, laid 8.5 m off
   onto the second, puts its end wall across the second's tunnel mouth at 0.9 of its 6 m range, where the
   station beyond heard the mouth's jambs on either side of its silence: a wall there would have answered
-  as they did (:func:`cistern_plugins.alignment.answering_reach_m`). Every placed scan of the ``partial`` site was 1.7–6.8 m off.
+  as they did (:func:`cistern_plugins.alignment.answering_reach_m`). Every placed scan of the ``partial``
+  site was 1.7–6.8 m off.
 """
 
 from __future__ import annotations

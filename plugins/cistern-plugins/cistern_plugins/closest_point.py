@@ -110,7 +110,7 @@ def fit_covariance(model: ReferenceModel, src: np.ndarray, pose: np.ndarray, inl
     moved = transform(src, pose)
     dist, idx = model.tree.query(moved, k=1)
     inl = dist <= inlier_distance_m
-    if inl.sum() >= 3 and len(src) >= 3:
+    if inl.sum() >= 3:
         own = rotate(estimate_normals(src, cKDTree(src)), pose[2])
         inl[inl] = parallel_walls(own[inl], model.normals[idx[inl]])
     if inl.sum() < 3:
