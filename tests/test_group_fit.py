@@ -154,6 +154,29 @@ def test_a_search_peak_the_refinement_does_not_confirm_is_refused():
     assert accept(held, settings) == ""
 
 
+def test_a_peak_that_loses_most_of_its_score_once_refined_must_still_beat_the_other_peaks():
+    """A peak that keeps less than ``confirm_share`` of its search score once refined is refused when
+    another of the search's peaks, refined too, scores more; one that keeps more is judged as before."""
+    from cistern_plugins.group_fit import GroupFit
+
+    settings = GroupFitSettings()
+    weak = GroupFit(pose=np.zeros(3), score=13.6, rival=36.7, best_coarse=65.3, covariance=np.eye(3) * 1e-4,
+                    refined_rival=17.6)
+    assert "another of its peaks scores 17.6 once refined" in accept(weak, settings)
+    beaten_by_none = GroupFit(**{**weak.__dict__, "refined_rival": 12.0})
+    assert accept(beaten_by_none, settings) == ""
+
+
+def test_the_other_peaks_are_refined_only_for_a_peak_the_refinement_weakens():
+    """Two chambers joined by a tunnel: the right place keeps most of its search score once refined, so
+    the search's other peaks are not refined for it."""
+    rng = np.random.default_rng(5)
+    west, east = _group(WEST, rng, "w"), _group(EAST, rng, "e")
+    fit = fit_groups(Cloud(*west), Cloud(*east), GroupFitSettings())
+    assert fit.score >= GroupFitSettings().confirm_share * fit.best_coarse
+    assert fit.refined_rival == -math.inf
+
+
 def test_a_flat_score_gives_the_widest_covariance_in_metres_and_degrees():
     """A score that does not change around the pose gives every direction the widest sigma."""
 

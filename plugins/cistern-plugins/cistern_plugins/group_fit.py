@@ -36,7 +36,8 @@ covariance of the score's curvature (:func:`score_covariance`).
 
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
-peak of the coarser search that the sharper refinement does not confirm is no peak), the best pose
+peak of the coarser search that the sharper refinement does not confirm is no peak; one that keeps less
+than ``confirm_share`` must also outscore the search's other peaks once they are refined too), the best pose
 farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it (a rival that lays more wall
 than the best into water either group saw pays for it at a heavier penalty, :func:`credible_rival`: two
 chambers of one shape laid on each other is no alternative to their true places), and neither group is a
@@ -91,6 +92,7 @@ class GroupFitSettings:
     min_score: float = 30.0
     min_spread: float = 0.1
     min_refined_share: float = 0.2
+    confirm_share: float = 0.3
     ambiguity_ratio: float = 0.8
     separation_m: float = 0.5
     rivals: int = 4
@@ -119,6 +121,10 @@ class GroupFit:
         in water cost beyond the best's (:func:`credible_rival`).
     best_coarse : float
         The best coarse score (the rival's yardstick).
+    refined_rival : float
+        Where the refinement kept less than ``confirm_share`` of the best's coarse score: the best score
+        of the search's other peaks, each refined as the best was and judged as :func:`credible_rival`
+        judges them, to compare with the best's own refined score; else ``-inf`` (not asked).
     covariance : ndarray, shape (3, 3)
         Of ``pose``, the turn about B's origin (:func:`score_covariance`).
     """
@@ -128,6 +134,7 @@ class GroupFit:
     rival: float
     best_coarse: float
     covariance: np.ndarray
+    refined_rival: float = -math.inf
 
 
 @dataclass(frozen=True)
@@ -303,10 +310,12 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
     if polished_score >= score - POLISH_TOLERANCE:
         pose, score = polished, polished_score
     rival = credible_rival(fine, peaks[1:], pose, best_coarse, s)
+    score = float(fine(pose[None, :], prior=False)[0])
+    refined = refined_rival(fine, peaks[1:], pose, s) if score < s.confirm_share * best_coarse else -math.inf
     covariance = score_covariance(fine, pose, s.unit)
     covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, peaks[0][1])
-    return GroupFit(pose=pose, score=float(fine(pose[None, :], prior=False)[0]), rival=rival,
-                    best_coarse=best_coarse, covariance=covariance)
+    return GroupFit(pose=pose, score=score, rival=rival, best_coarse=best_coarse, covariance=covariance,
+                    refined_rival=refined)
 
 
 def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], best: np.ndarray,
@@ -339,6 +348,26 @@ def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], 
     return out
 
 
+def refined_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], best: np.ndarray,
+                  s: GroupFitSettings) -> float:
+    """The best refined score of the search's other peaks (``rivals``, :func:`distinct_peaks`), each less
+    ``rival_free_penalty - free_penalty`` per cell of wall it lays in water beyond what ``best`` lays
+    there (as :func:`credible_rival` judges a rival's coarse score); ``-inf`` when there are none.
+    Without the compass prior, as :attr:`GroupFit.score`.
+
+    A peak of the coarse search that loses most of its score on the sharper fields may owe its rank to
+    the coarse fields' blur: one lone station was laid 12 m off in a chamber that shared no wall with it,
+    at a refined 13.6 of its search's 65, while two of the search's other peaks, refined, scored 17.1
+    and 17.6 (seed 125 ``cistern-036``). :func:`accept` refuses such a peak when a rival outscores it."""
+    extra = s.rival_free_penalty - s.free_penalty
+    own = float(fine.conflict(best[None, :])[0])
+    out = -math.inf
+    for _, pose in rivals:
+        placed = refine(fine, pose, s)[0][None, :]
+        out = max(out, float(fine(placed, prior=False)[0]) - extra * max(0.0, float(fine.conflict(placed)[0]) - own))
+    return out
+
+
 def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, float] = (1.0, 1.0)) -> str:
     """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not.
 
@@ -355,6 +384,10 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     if fit.score < s.min_refined_share * fit.best_coarse:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search")
+    if fit.refined_rival > fit.score:
+        return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
+                f"{fit.best_coarse:.0f} in the search, and another of its peaks scores {fit.refined_rival:.1f} "
+                f"once refined")
     if fit.rival > s.ambiguity_ratio * fit.best_coarse:
         return (f"ambiguous: a place {s.separation_m:.1f} m or more away scores {fit.rival:.0f} against "
                 f"the best {fit.best_coarse:.0f}")
