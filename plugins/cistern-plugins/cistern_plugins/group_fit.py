@@ -122,9 +122,12 @@ class GroupFit:
     best_coarse : float
         The best coarse score (the rival's yardstick).
     refined_rival : float
-        Where the refinement kept less than ``confirm_share`` of the best's coarse score: the best score
-        of the search's other peaks, each refined as the best was and judged as :func:`credible_rival`
-        judges them, to compare with the best's own refined score; else ``-inf`` (not asked).
+        Where the refinement kept less than ``confirm_share`` of the search's best score: the best refined
+        score of the search's other peaks, judged as :meth:`Peak.credible` against the fit; else ``-inf``
+        (not asked).
+    chosen_by_refinement : bool
+        The fit is another peak of the search than its best, chosen by its refined score
+        (:func:`choose_refined`).
     covariance : ndarray, shape (3, 3)
         Of ``pose``, the turn about B's origin (:func:`score_covariance`).
     """
@@ -135,6 +138,7 @@ class GroupFit:
     best_coarse: float
     covariance: np.ndarray
     refined_rival: float = -math.inf
+    chosen_by_refinement: bool = False
 
 
 @dataclass(frozen=True)
@@ -294,28 +298,101 @@ def refine_icp(a: Cloud, b: Cloud, pose: np.ndarray, *, iterations: int = 30, ra
     return pose
 
 
+@dataclass(frozen=True)
+class Peak:
+    """One peak of the search, refined: its coarse score and pose, its refined pose, its refined score
+    without the compass prior (as :attr:`GroupFit.score`) and the wall it lays in water there
+    (:meth:`FineScore.conflict`)."""
+
+    coarse: float
+    coarse_pose: np.ndarray
+    pose: np.ndarray
+    score: float
+    conflict: float
+
+    @classmethod
+    def refined(cls, a: Cloud, b: Cloud, fine: FineScore, peak: tuple[float, np.ndarray], s: GroupFitSettings,
+                polish: bool = True) -> "Peak":
+        """``peak`` (coarse score, pose) refined on the fine fields (:func:`refine`) and, with ``polish``,
+        by point-to-line ICP unless that loses more than :data:`POLISH_TOLERANCE` of the score."""
+        pose, score = refine(fine, peak[1], s)
+        if polish:
+            polished = refine_icp(a, b, pose, radius_m=REFINE_RADIUS_M * s.unit)
+            if float(fine(polished[None, :])[0]) >= score - POLISH_TOLERANCE:
+                pose = polished
+        return cls(peak[0], peak[1], pose, float(fine(pose[None, :], prior=False)[0]),
+                   float(fine.conflict(pose[None, :])[0]))
+
+    def credible(self, against: "Peak", s: GroupFitSettings) -> float:
+        """The refined score less ``rival_free_penalty - free_penalty`` per cell of wall laid in water
+        beyond what ``against`` lays there (as :func:`credible_rival` judges a coarse score)."""
+        return self.score - (s.rival_free_penalty - s.free_penalty) * max(0.0, self.conflict - against.conflict)
+
+
 def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
-    """The best placement of cloud ``b`` in ``a``'s frame and its rival, or ``None`` when either is empty."""
+    """The best placement of cloud ``b`` in ``a``'s frame and its rival, or ``None`` when either is empty.
+
+    A peak of the search that keeps less than ``confirm_share`` of its score once refined may owe its
+    rank to the coarse fields' blur; then every peak of the search is refined, and the one that scores
+    best on the sharper fields, judged as :meth:`Peak.credible`, is the fit (:func:`choose_refined`)."""
     if len(a.points) < 3 or len(b.points) < 3:
         return None
     scores, yaws, lo_a, lo_b, shape_a = coarse_scores(a, b, s)
     peaks = distinct_peaks(scores, yaws, lo_a, lo_b, shape_a, s, count=1 + s.rivals)
     if not peaks:
         return None
-    best_coarse, pose = peaks[0]
     fine = FineScore(a, b, s)
-    pose, score = refine(fine, pose, s)
-    polished = refine_icp(a, b, pose, radius_m=REFINE_RADIUS_M * s.unit)
-    polished_score = float(fine(polished[None, :])[0])
-    if polished_score >= score - POLISH_TOLERANCE:
-        pose, score = polished, polished_score
-    rival = credible_rival(fine, peaks[1:], pose, best_coarse, s)
-    score = float(fine(pose[None, :], prior=False)[0])
-    refined = refined_rival(fine, peaks[1:], pose, s) if score < s.confirm_share * best_coarse else -math.inf
-    covariance = score_covariance(fine, pose, s.unit)
-    covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, peaks[0][1])
-    return GroupFit(pose=pose, score=score, rival=rival, best_coarse=best_coarse, covariance=covariance,
-                    refined_rival=refined)
+    best = Peak.refined(a, b, fine, peaks[0], s)
+    if best.score >= s.confirm_share * best.coarse:
+        covariance = score_covariance(fine, best.pose, s.unit)
+        covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, best.coarse_pose)
+        return GroupFit(pose=best.pose, score=best.score, rival=credible_rival(fine, peaks[1:], best.pose, best.coarse, s),
+                        best_coarse=best.coarse, covariance=covariance)
+    return choose_refined(a, b, fine, best, peaks[1:], s, outlying_spread(scores, lo_a - lo_b, shape_a, s, best.coarse_pose))
+
+
+def choose_refined(a: Cloud, b: Cloud, fine: FineScore, best: Peak, rivals: Sequence[tuple[float, np.ndarray]],
+                   s: GroupFitSettings, spread: np.ndarray) -> GroupFit:
+    """The fit among the search's peaks (``best``, refined, and ``rivals``) that scores best once each is
+    refined, judged as :meth:`Peak.credible` against ``best``; its :attr:`GroupFit.refined_rival` is the
+    best of the others judged against it. ``spread`` is the search's :func:`outlying_spread` about
+    ``best``, kept when ``best`` stays the fit; a peak chosen over it instead takes the spread of the other
+    refined peaks about itself (:func:`refined_spread`), as the search's mass lies around a peak the
+    refinement did not confirm.
+
+    One lone station was laid 12 m off in a chamber that shared no wall with it, at a refined 13.6 of its
+    search's 65, while two of the search's other peaks, refined, scored 17.1 and 17.6 (seed 125
+    ``cistern-036``); a chamber's search peaked at 81 where, refined, it laid 43 cells of wall in water
+    and scored −7.3, 6.3 m from the true place, whose peak scored 68 in the search and 49.3 refined
+    (seed 128 ``cistern-018``)."""
+    peaks = [best] + [Peak.refined(a, b, fine, rival, s, polish=False) for rival in rivals]
+    top = max(peaks, key=lambda peak: peak.credible(best, s))
+    chosen = top is not best
+    if chosen:
+        top = Peak.refined(a, b, fine, (top.coarse, top.coarse_pose), s)
+        spread = refined_spread(top, [p for p in peaks if p.coarse_pose is not top.coarse_pose], s)
+    others = [p for p in peaks if p.coarse_pose is not top.coarse_pose]
+    covariance = score_covariance(fine, top.pose, s.unit)
+    covariance[:2, :2] += spread
+    rival = credible_rival(fine, [(p.coarse, p.coarse_pose) for p in others], top.pose, top.coarse, s)
+    return GroupFit(pose=top.pose, score=top.score, rival=rival, best_coarse=top.coarse, covariance=covariance,
+                    refined_rival=max((p.credible(top, s) for p in others), default=-math.inf),
+                    chosen_by_refinement=chosen)
+
+
+def refined_spread(top: Peak, others: Sequence[Peak], s: GroupFitSettings) -> np.ndarray:
+    """The translation covariance (2 × 2) the other refined peaks add to ``top``, as
+    :func:`outlying_spread` reads the search's mass: each peak farther than :data:`OUTLYING_M` from it
+    weighs ``exp((S - S_top) / SCORE_TEMPERATURE)`` with ``S`` judged as :meth:`Peak.credible`."""
+    out = np.zeros((2, 2))
+    total = 1.0
+    for peak in others:
+        weight = math.exp(min(0.0, peak.credible(top, s) - top.score) / SCORE_TEMPERATURE)
+        total += weight
+        t = peak.pose[:2] - top.pose[:2]
+        if math.hypot(*t) > OUTLYING_M * s.unit:
+            out += weight * np.outer(t, t)
+    return out / total
 
 
 def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], best: np.ndarray,
@@ -348,26 +425,6 @@ def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], 
     return out
 
 
-def refined_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], best: np.ndarray,
-                  s: GroupFitSettings) -> float:
-    """The best refined score of the search's other peaks (``rivals``, :func:`distinct_peaks`), each less
-    ``rival_free_penalty - free_penalty`` per cell of wall it lays in water beyond what ``best`` lays
-    there (as :func:`credible_rival` judges a rival's coarse score); ``-inf`` when there are none.
-    Without the compass prior, as :attr:`GroupFit.score`.
-
-    A peak of the coarse search that loses most of its score on the sharper fields may owe its rank to
-    the coarse fields' blur: one lone station was laid 12 m off in a chamber that shared no wall with it,
-    at a refined 13.6 of its search's 65, while two of the search's other peaks, refined, scored 17.1
-    and 17.6 (seed 125 ``cistern-036``). :func:`accept` refuses such a peak when a rival outscores it."""
-    extra = s.rival_free_penalty - s.free_penalty
-    own = float(fine.conflict(best[None, :])[0])
-    out = -math.inf
-    for _, pose in rivals:
-        placed = refine(fine, pose, s)[0][None, :]
-        out = max(out, float(fine(placed, prior=False)[0]) - extra * max(0.0, float(fine.conflict(placed)[0]) - own))
-    return out
-
-
 def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, float] = (1.0, 1.0)) -> str:
     """Empty when ``fit`` is clear enough to join two groups (module docstring), else why not.
 
@@ -384,6 +441,9 @@ def accept(fit: GroupFit | None, s: GroupFitSettings, spreads: tuple[float, floa
     if fit.score < s.min_refined_share * fit.best_coarse:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search")
+    if fit.chosen_by_refinement and fit.refined_rival > s.ambiguity_ratio * fit.score:
+        return (f"ambiguous once refined: the search's peaks score {fit.score:.1f} and {fit.refined_rival:.1f} "
+                f"on the sharper fields")
     if fit.refined_rival > fit.score:
         return (f"the search's peak does not hold once refined: score {fit.score:.1f} against "
                 f"{fit.best_coarse:.0f} in the search, and another of its peaks scores {fit.refined_rival:.1f} "
