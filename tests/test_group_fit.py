@@ -167,6 +167,19 @@ def test_a_peak_that_loses_most_of_its_score_once_refined_must_still_beat_the_ot
     assert accept(beaten_by_none, settings) == ""
 
 
+def test_a_peak_chosen_by_its_refined_score_must_be_clearly_best_on_the_sharper_fields():
+    """A fit chosen among the search's peaks by its refined score is refused when another of them, refined,
+    scores more than ``ambiguity_ratio`` of it."""
+    from cistern_plugins.group_fit import GroupFit
+
+    settings = GroupFitSettings()
+    chosen = GroupFit(pose=np.zeros(3), score=49.3, rival=20.0, best_coarse=68.0, covariance=np.eye(3) * 1e-4,
+                      refined_rival=20.1, chosen_by_refinement=True)
+    assert accept(chosen, settings) == ""
+    close = GroupFit(**{**chosen.__dict__, "refined_rival": 41.0})
+    assert "ambiguous once refined" in accept(close, settings)
+
+
 def test_the_other_peaks_are_refined_only_for_a_peak_the_refinement_weakens():
     """Two chambers joined by a tunnel: the right place keeps most of its search score once refined, so
     the search's other peaks are not refined for it."""
