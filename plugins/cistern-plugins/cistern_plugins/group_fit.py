@@ -36,8 +36,9 @@ covariance of the score's curvature (:func:`score_covariance`).
 
 A placement is accepted (:func:`accept`) when it is clearly best: its score reaches ``min_score`` (in
 cells of wall, about ``cell_m`` of wall each) and keeps ``min_refined_share`` of it once refined (a
-peak of the coarser search that the sharper refinement does not confirm is no peak; one that keeps less
-than ``confirm_share`` must also outscore the search's other peaks once they are refined too), the best pose
+peak of the coarser search that the sharper refinement does not confirm is no peak; where it keeps less
+than ``confirm_share``, every peak of the search is refined and the one that scores best there is the fit,
+clearly best if it is not the search's own, :func:`choose_refined`), the best pose
 farther than ``separation_m`` away scores at most ``ambiguity_ratio`` of it (a rival that lays more wall
 than the best into water either group saw pays for it at a heavier penalty, :func:`credible_rival`: two
 chambers of one shape laid on each other is no alternative to their true places), and neither group is a
