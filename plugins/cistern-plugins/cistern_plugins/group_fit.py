@@ -344,12 +344,13 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
         return None
     fine = FineScore(a, b, s)
     best = Peak.refined(a, b, fine, peaks[0], s)
-    if best.score >= s.confirm_share * best.coarse:
-        covariance = score_covariance(fine, best.pose, s.unit)
-        covariance[:2, :2] += outlying_spread(scores, lo_a - lo_b, shape_a, s, best.coarse_pose)
-        return GroupFit(pose=best.pose, score=best.score, rival=credible_rival(fine, peaks[1:], best.pose, best.coarse, s),
-                        best_coarse=best.coarse, covariance=covariance)
-    return choose_refined(a, b, fine, best, peaks[1:], s, outlying_spread(scores, lo_a - lo_b, shape_a, s, best.coarse_pose))
+    spread = outlying_spread(scores, lo_a - lo_b, shape_a, s, best.coarse_pose)
+    if best.score < s.confirm_share * best.coarse:
+        return choose_refined(a, b, fine, best, peaks[1:], s, spread)
+    covariance = score_covariance(fine, best.pose, s.unit)
+    covariance[:2, :2] += spread
+    return GroupFit(pose=best.pose, score=best.score, rival=credible_rival(fine, peaks[1:], best.pose, best.coarse, s),
+                    best_coarse=best.coarse, covariance=covariance)
 
 
 def choose_refined(a: Cloud, b: Cloud, fine: FineScore, best: Peak, rivals: Sequence[tuple[float, np.ndarray]],
@@ -367,18 +368,17 @@ def choose_refined(a: Cloud, b: Cloud, fine: FineScore, best: Peak, rivals: Sequ
     and scored −7.3, 6.3 m from the true place, whose peak scored 68 in the search and 49.3 refined
     (seed 128 ``cistern-018``)."""
     peaks = [best] + [Peak.refined(a, b, fine, rival, s, polish=False) for rival in rivals]
-    top = max(peaks, key=lambda peak: peak.credible(best, s))
-    chosen = top is not best
-    if chosen:
+    k = max(range(len(peaks)), key=lambda n: peaks[n].credible(best, s))
+    top, others = peaks[k], peaks[:k] + peaks[k + 1:]
+    if k > 0:
         top = Peak.refined(a, b, fine, (top.coarse, top.coarse_pose), s)
-        spread = refined_spread(top, [p for p in peaks if p.coarse_pose is not top.coarse_pose], s)
-    others = [p for p in peaks if p.coarse_pose is not top.coarse_pose]
+        spread = refined_spread(top, others, s)
     covariance = score_covariance(fine, top.pose, s.unit)
     covariance[:2, :2] += spread
     rival = credible_rival(fine, [(p.coarse, p.coarse_pose) for p in others], top.pose, top.coarse, s)
     return GroupFit(pose=top.pose, score=top.score, rival=rival, best_coarse=top.coarse, covariance=covariance,
                     refined_rival=max((p.credible(top, s) for p in others), default=-math.inf),
-                    chosen_by_refinement=chosen)
+                    chosen_by_refinement=k > 0)
 
 
 def refined_spread(top: Peak, others: Sequence[Peak], s: GroupFitSettings) -> np.ndarray:

@@ -75,8 +75,9 @@ builds a graph over the whole site instead, in three steps.
    other's frame that lays walls on walls seen from the same side, and no wall in water either group
    saw (open beams count as water); it joins two groups when its score reaches ``group_min_score`` and
    holds once refined on sharper fields (where the search's peak keeps less than 0.3 of its score there,
-   every peak of the search is refined and the best of them there is the fit), no place 0.5 m away scores more than ``group_ambiguity_ratio`` of it (a place that lays more wall than the
-   best into the water either group saw is judged at a heavier penalty: two chambers of one shape laid
+   every peak of the search is refined and the best of them there is the fit), no place 0.5 m away
+   scores more than ``group_ambiguity_ratio`` of it (a place that lays more wall than the best into the
+   water either group saw is judged at a heavier penalty: two chambers of one shape laid
    on each other is no rival), neither group is a tunnel seen
    from inside (two parallel walls fit every passage of their width), and the join passes the wall
    check. Only groups the survey visited one after the other are fitted (two of their stations at most
