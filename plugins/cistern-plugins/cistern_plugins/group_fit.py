@@ -51,7 +51,7 @@ groups.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -324,10 +324,15 @@ class Peak:
         return cls(peak[0], peak[1], pose, float(fine(pose[None, :], prior=False)[0]),
                    float(fine.conflict(pose[None, :])[0]))
 
+    def excess_conflict(self, against: "Peak", s: GroupFitSettings) -> float:
+        """``rival_free_penalty - free_penalty`` per cell of wall laid in water beyond what ``against``
+        lays there."""
+        return (s.rival_free_penalty - s.free_penalty) * max(0.0, self.conflict - against.conflict)
+
     def credible(self, against: "Peak", s: GroupFitSettings) -> float:
-        """The refined score less ``rival_free_penalty - free_penalty`` per cell of wall laid in water
-        beyond what ``against`` lays there (as :func:`credible_rival` judges a coarse score)."""
-        return self.score - (s.rival_free_penalty - s.free_penalty) * max(0.0, self.conflict - against.conflict)
+        """The refined score less :meth:`excess_conflict` (as :func:`credible_rival` judges a coarse
+        score)."""
+        return self.score - self.excess_conflict(against, s)
 
 
 def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
@@ -349,8 +354,9 @@ def fit_groups(a: Cloud, b: Cloud, s: GroupFitSettings) -> GroupFit | None:
         return choose_refined(a, b, fine, best, peaks[1:], s, spread)
     covariance = score_covariance(fine, best.pose, s.unit)
     covariance[:2, :2] += spread
-    return GroupFit(pose=best.pose, score=best.score, rival=credible_rival(fine, peaks[1:], best.pose, best.coarse, s),
-                    best_coarse=best.coarse, covariance=covariance)
+    rivals = (Peak.refined(a, b, fine, rival, s, polish=False) for rival in peaks[1:])
+    return GroupFit(pose=best.pose, score=best.score, rival=credible_rival(rivals, best, s), best_coarse=best.coarse,
+                    covariance=covariance)
 
 
 def choose_refined(a: Cloud, b: Cloud, fine: FineScore, best: Peak, rivals: Sequence[tuple[float, np.ndarray]],
@@ -375,7 +381,7 @@ def choose_refined(a: Cloud, b: Cloud, fine: FineScore, best: Peak, rivals: Sequ
         spread = refined_spread(top, others, s)
     covariance = score_covariance(fine, top.pose, s.unit)
     covariance[:2, :2] += spread
-    rival = credible_rival(fine, [(p.coarse, p.coarse_pose) for p in others], top.pose, top.coarse, s)
+    rival = credible_rival(others, top, s)
     return GroupFit(pose=top.pose, score=top.score, rival=rival, best_coarse=top.coarse, covariance=covariance,
                     refined_rival=max((p.credible(top, s) for p in others), default=-math.inf),
                     chosen_by_refinement=k > 0)
@@ -396,13 +402,12 @@ def refined_spread(top: Peak, others: Sequence[Peak], s: GroupFitSettings) -> np
     return out / total
 
 
-def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], best: np.ndarray,
-                   best_coarse: float, s: GroupFitSettings) -> float:
+def credible_rival(rivals: Iterable[Peak], best: Peak, s: GroupFitSettings) -> float:
     """The coarse score of the best rival place (``rivals``: the search's next peaks, best first,
-    :func:`distinct_peaks`) once each pays for the walls it lays in water beyond what ``best`` (coarse
-    score ``best_coarse``) lays there, at ``rival_free_penalty`` instead of the search's ``free_penalty``
-    per cell. Only rivals above ``ambiguity_ratio`` of the best could make the fit ambiguous; the first
-    one under it keeps its coarse score unjudged, as every one after it would stay under it.
+    :func:`distinct_peaks`, each refined as a :class:`Peak`) once each pays for the walls it lays in water
+    beyond what ``best`` lays there, at ``rival_free_penalty`` instead of the search's ``free_penalty``
+    per cell (:meth:`Peak.excess_conflict`). Only rivals above ``ambiguity_ratio`` of the best could make
+    the fit ambiguous; the first one under it keeps its coarse score unjudged, as every one after it would stay under it.
 
     The search's penalty keeps one chamber from being laid inside another on the walls they share, but
     two chambers of one shape laid on each other agree on every wall and conflict only where one's mouth
@@ -410,19 +415,16 @@ def credible_rival(fine: FineScore, rivals: Sequence[tuple[float, np.ndarray]], 
     against the right place's 239, with 45 cells of wall in water against its 1.6, and the fit was
     refused as ambiguous. A place that puts walls where the other group's sonars saw water is
     no likely alternative; a rival that does not (another look-alike of the same quality) keeps its
-    score. Each rival is refined first (:func:`refine`), as the best is, so that both are judged at
-    their own peaks. The best place itself is chosen as before: scoring every place at the heavier
+    score. Each rival is refined (:func:`refine`), as the best is, so that both are judged at their own
+    peaks; ``rivals`` may be a generator, so that only the rivals reached are refined. The best place
+    itself is chosen as before: scoring every place at the heavier
     penalty, or choosing the best by it, accepted fewer right fits on the tuning seeds.
     """
-    extra = s.rival_free_penalty - s.free_penalty
-    own = None
     out = 0.0
-    for coarse, pose in rivals:
-        if coarse <= s.ambiguity_ratio * best_coarse:
-            return max(out, coarse)
-        own = float(fine.conflict(best[None, :])[0]) if own is None else own
-        placed = refine(fine, pose, s)[0]
-        out = max(out, coarse - extra * max(0.0, float(fine.conflict(placed[None, :])[0]) - own))
+    for peak in rivals:
+        if peak.coarse <= s.ambiguity_ratio * best.coarse:
+            return max(out, peak.coarse)
+        out = max(out, peak.coarse - peak.excess_conflict(best, s))
     return out
 
 
